@@ -1,0 +1,1 @@
+"""Per-vertex shape descriptors: WKS (numpy) and a learned DiffusionNet (PyTorch, imported lazily)."""

@@ -1,0 +1,3 @@
+"""spidermatch: globally optimal, geometrically consistent 3D shape matching (SpiderMatch)."""
+
+__version__ = "0.1.0"

@@ -1,0 +1,289 @@
+"""Immutable triangle meshes, their validation and their edge graphs.
+
+Array conventions used throughout spidermatch: vertices are float64 ``(V, 3)``,
+faces int64 ``(F, 3)``, undirected edges int64 ``(E, 2)`` with ``i < j``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+logger = logging.getLogger(__name__)
+
+
+class MeshError(ValueError):
+    """A mesh is unusable; the message names the mesh (usually its file) and the problem."""
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A validated triangle mesh.
+
+    Attributes
+    ----------
+    verts : np.ndarray, shape (V, 3), float64
+        Vertex positions (read-only).
+    faces : np.ndarray, shape (F, 3), int64
+        Vertex indices of each triangle (read-only).
+    name : str
+        Where the mesh came from (file path or generator name), used in messages.
+    """
+
+    verts: np.ndarray
+    faces: np.ndarray
+    name: str = "<mesh>"
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        verts = np.array(self.verts, dtype=np.float64, copy=True)
+        faces = np.array(self.faces, dtype=np.int64, copy=True)
+        verts.setflags(write=False)
+        faces.setflags(write=False)
+        object.__setattr__(self, "verts", verts)
+        object.__setattr__(self, "faces", faces)
+
+    @property
+    def n_verts(self) -> int:
+        """Number of vertices V."""
+        return int(self.verts.shape[0])
+
+    @property
+    def n_faces(self) -> int:
+        """Number of faces F."""
+        return int(self.faces.shape[0])
+
+    def _cached(self, key: str, compute):
+        if key not in self._cache:
+            value = compute()
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+            self._cache[key] = value
+        return self._cache[key]
+
+    @property
+    def face_areas(self) -> np.ndarray:
+        """Area of each face, shape (F,)."""
+        return self._cached("face_areas", lambda: triangle_areas(self.verts, self.faces))
+
+    @property
+    def area(self) -> float:
+        """Total surface area."""
+        return float(self.face_areas.sum())
+
+    @property
+    def edges(self) -> np.ndarray:
+        """Unique undirected mesh edges, shape (E, 2), with ``edges[:, 0] < edges[:, 1]``."""
+        return self._cached("edges", lambda: unique_edges(self.faces))
+
+    @property
+    def augmented_edges(self) -> np.ndarray:
+        """Mesh edges plus, for each interior edge, the edge joining its two opposite vertices.
+
+        Returns
+        -------
+        np.ndarray, shape (E_aug, 2)
+            Unique undirected edges with ``i < j`` (method.md section 2).
+        """
+        return self._cached("augmented_edges", lambda: augment_edges(self.faces))
+
+    def centred(self) -> Mesh:
+        """Return a copy translated so that the mean vertex lies at the origin."""
+        return Mesh(self.verts - self.verts.mean(axis=0), self.faces, self.name)
+
+    def edge_graph(self, augmented: bool = False) -> sp.csr_matrix:
+        """Symmetric sparse adjacency weighted by Euclidean edge length, shape (V, V)."""
+        edges = self.augmented_edges if augmented else self.edges
+        return edge_length_graph(self.verts, edges)
+
+
+def triangle_areas(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area of each triangle.
+
+    Parameters
+    ----------
+    verts : np.ndarray, shape (V, 3)
+    faces : np.ndarray, shape (F, 3)
+
+    Returns
+    -------
+    np.ndarray, shape (F,)
+    """
+    a, b, c = (verts[faces[:, k]] for k in range(3))
+    return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+
+
+def face_edges(faces: np.ndarray) -> np.ndarray:
+    """The three sorted edges of every face, shape (F, 3, 2); edge k is opposite corner k."""
+    opposite = np.stack(
+        [faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]], axis=1
+    )
+    return np.sort(opposite, axis=2)
+
+
+def unique_edges(faces: np.ndarray) -> np.ndarray:
+    """Unique undirected edges of a triangle list, shape (E, 2), rows sorted lexicographically."""
+    all_edges = face_edges(faces).reshape(-1, 2)
+    return np.unique(all_edges, axis=0)
+
+
+def augment_edges(faces: np.ndarray) -> np.ndarray:
+    """Edges plus the 'flip' edge across every interior edge.
+
+    For an interior edge (i, j) shared by triangles (i, j, k) and (j, i, l) the
+    augmented edge is (k, l). Duplicates and self-loops are removed.
+
+    Parameters
+    ----------
+    faces : np.ndarray, shape (F, 3)
+
+    Returns
+    -------
+    np.ndarray, shape (E_aug, 2), sorted rows with ``i < j``.
+    """
+    edges_per_face = face_edges(faces).reshape(-1, 2)
+    opposite_vertex = faces.reshape(-1)  # corner k is opposite edge k
+    order = np.lexsort((edges_per_face[:, 1], edges_per_face[:, 0]))
+    sorted_edges = edges_per_face[order]
+    same_as_next = np.all(sorted_edges[1:] == sorted_edges[:-1], axis=1)
+    first = order[:-1][same_as_next]
+    second = order[1:][same_as_next]
+    flips = np.sort(np.stack([opposite_vertex[first], opposite_vertex[second]], axis=1), axis=1)
+    flips = flips[flips[:, 0] != flips[:, 1]]
+    return np.unique(np.concatenate([edges_per_face, flips]), axis=0)
+
+
+def directed_edges(edges: np.ndarray) -> np.ndarray:
+    """Both orientations of undirected edges, shape (2E, 2): first all (i, j), then all (j, i)."""
+    return np.concatenate([edges, edges[:, ::-1]])
+
+
+def edge_length_graph(verts: np.ndarray, edges: np.ndarray) -> sp.csr_matrix:
+    """Symmetric sparse matrix with the Euclidean length of each edge, shape (V, V)."""
+    lengths = np.linalg.norm(verts[edges[:, 0]] - verts[edges[:, 1]], axis=1)
+    n = verts.shape[0]
+    rows = np.concatenate([edges[:, 0], edges[:, 1]])
+    cols = np.concatenate([edges[:, 1], edges[:, 0]])
+    graph = sp.coo_matrix((np.concatenate([lengths, lengths]), (rows, cols)), shape=(n, n))
+    return graph.tocsr()
+
+
+def validate_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") -> None:
+    """Check that (verts, faces) is a usable triangle mesh; raise :class:`MeshError` if not.
+
+    Checks, in order: array shapes, empty mesh, non-finite coordinates, faces that
+    index missing vertices, degenerate faces (repeated vertex or zero area),
+    vertices used by no face, non-manifold edges (more than two faces), and
+    several connected components.
+
+    Parameters
+    ----------
+    verts : np.ndarray, shape (V, 3)
+    faces : np.ndarray, shape (F, 3)
+    name : str
+        Named in every error message (typically the file path).
+    """
+    verts = np.asarray(verts)
+    faces = np.asarray(faces)
+    _check_shapes(verts, faces, name)
+    _check_finite(verts, name)
+    _check_face_indices(faces, verts.shape[0], name)
+    _check_degenerate_faces(verts, faces, name)
+    _check_unreferenced(faces, verts.shape[0], name)
+    _check_manifold_edges(faces, name)
+    _check_single_component(faces, verts.shape[0], name)
+
+
+def _check_shapes(verts: np.ndarray, faces: np.ndarray, name: str) -> None:
+    if verts.size == 0 or faces.size == 0:
+        raise MeshError(
+            f"{name}: empty mesh ({verts.shape[0] if verts.ndim else 0} vertices, "
+            f"{faces.shape[0] if faces.ndim else 0} faces)"
+        )
+    if verts.ndim != 2 or verts.shape[1] != 3:
+        raise MeshError(f"{name}: vertices must have shape (V, 3), got {verts.shape}")
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise MeshError(f"{name}: faces must be triangles with shape (F, 3), got {faces.shape}")
+    if not np.issubdtype(faces.dtype, np.integer):
+        raise MeshError(f"{name}: face indices must be integers, got dtype {faces.dtype}")
+
+
+def _check_finite(verts: np.ndarray, name: str) -> None:
+    bad = ~np.isfinite(verts).all(axis=1)
+    if bad.any():
+        rows = np.flatnonzero(bad)
+        raise MeshError(
+            f"{name}: {rows.size} vertices have NaN or infinite coordinates "
+            f"(first: vertex {rows[0]} = {verts[rows[0]].tolist()})"
+        )
+
+
+def _check_face_indices(faces: np.ndarray, n_verts: int, name: str) -> None:
+    bad = (faces < 0) | (faces >= n_verts)
+    if bad.any():
+        row = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise MeshError(
+            f"{name}: face {row} = {faces[row].tolist()} refers to a vertex that does not exist "
+            f"(the mesh has {n_verts} vertices, valid indices 0..{n_verts - 1})"
+        )
+
+
+def _check_degenerate_faces(verts: np.ndarray, faces: np.ndarray, name: str) -> None:
+    repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+    extent = float(np.ptp(verts, axis=0).max()) or 1.0
+    zero_area = triangle_areas(verts, faces) <= 1e-14 * extent**2
+    bad = np.flatnonzero(repeated | zero_area)
+    if bad.size:
+        raise MeshError(
+            f"{name}: {bad.size} degenerate faces (repeated vertex or zero area), "
+            f"first: face {bad[0]} = {faces[bad[0]].tolist()}"
+        )
+
+
+def _check_unreferenced(faces: np.ndarray, n_verts: int, name: str) -> None:
+    used = np.zeros(n_verts, dtype=bool)
+    used[faces.reshape(-1)] = True
+    if not used.all():
+        unused = np.flatnonzero(~used)
+        raise MeshError(
+            f"{name}: {unused.size} vertices are not used by any face "
+            f"(first: vertex {unused[0]}); remove them before matching"
+        )
+
+
+def _check_manifold_edges(faces: np.ndarray, name: str) -> None:
+    edges, counts = np.unique(face_edges(faces).reshape(-1, 2), axis=0, return_counts=True)
+    bad = counts > 2
+    if bad.any():
+        first = edges[bad][0]
+        raise MeshError(
+            f"{name}: {int(bad.sum())} non-manifold edges shared by more than two faces "
+            f"(first: edge {first.tolist()} in {int(counts[bad][0])} faces)"
+        )
+
+
+def _check_single_component(faces: np.ndarray, n_verts: int, name: str) -> None:
+    edges = face_edges(faces).reshape(-1, 2)
+    graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n_verts, n_verts))
+    n_components, labels = connected_components(graph, directed=False)
+    if n_components > 1:
+        sizes = np.bincount(labels)
+        listing = ", ".join(
+            f"component {k}: {sizes[k]} vertices (e.g. vertex {int(np.flatnonzero(labels == k)[0])})"
+            for k in np.argsort(-sizes)[:5]
+        )
+        more = "" if n_components <= 5 else f", and {n_components - 5} more"
+        raise MeshError(
+            f"{name}: the mesh has {n_components} connected components; spidermatch needs one "
+            f"connected surface ({listing}{more})"
+        )
+
+
+def make_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") -> Mesh:
+    """Validate (verts, faces) and wrap them in a :class:`Mesh`."""
+    validate_mesh(verts, faces, name)
+    return Mesh(np.asarray(verts, dtype=np.float64), np.asarray(faces, dtype=np.int64), name)

@@ -1,0 +1,83 @@
+"""Decimation to a target face count, with the map back to full-resolution vertices."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from spidermatch.mesh import Mesh, MeshError, make_mesh, triangle_areas
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Decimated:
+    """A low-resolution mesh and where its vertices come from.
+
+    Attributes
+    ----------
+    mesh : Mesh
+        The decimated mesh, V_low vertices.
+    to_full : np.ndarray, shape (V_low,), int64
+        For each low-resolution vertex, the nearest vertex of the full-resolution mesh.
+    """
+
+    mesh: Mesh
+    to_full: np.ndarray
+
+
+def decimate(mesh: Mesh, target_faces: int) -> Decimated:
+    """Quadric-error decimation of ``mesh`` to about ``target_faces`` triangles.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Full-resolution mesh (V, F).
+    target_faces : int
+        Wanted number of faces. A mesh that already has at most this many faces is
+        returned unchanged with the identity map.
+
+    Returns
+    -------
+    Decimated
+        Low-resolution mesh and the (V_low,) map to the nearest full-resolution vertex.
+
+    Raises
+    ------
+    MeshError
+        If the decimated mesh is not a single manifold surface (too few faces for the shape).
+    """
+    if target_faces < 4:
+        raise MeshError(f"{mesh.name}: cannot decimate to {target_faces} faces (need at least 4)")
+    if mesh.n_faces <= target_faces:
+        return Decimated(mesh, np.arange(mesh.n_verts, dtype=np.int64))
+    import fast_simplification
+
+    reduction = 1.0 - target_faces / mesh.n_faces
+    verts, faces = fast_simplification.simplify(
+        mesh.verts.astype(np.float64), mesh.faces.astype(np.int32), target_reduction=reduction
+    )
+    verts, faces = _drop_degenerate_and_unused(np.asarray(verts, np.float64), np.asarray(faces, np.int64))
+    name = f"{mesh.name} (decimated to {target_faces} faces)"
+    try:
+        low = make_mesh(verts, faces, name)
+    except MeshError as error:
+        raise MeshError(f"{error}; try a higher resolution") from error
+    _, to_full = cKDTree(mesh.verts).query(low.verts)
+    logger.debug("decimated %s: %d -> %d faces", mesh.name, mesh.n_faces, low.n_faces)
+    return Decimated(low, np.asarray(to_full, dtype=np.int64))
+
+
+def _drop_degenerate_and_unused(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Remove faces with repeated vertices or zero area, then vertices no face uses."""
+    repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+    extent = float(np.ptp(verts, axis=0).max()) or 1.0
+    keep = ~repeated & (triangle_areas(verts, faces) > 1e-14 * extent**2)
+    faces = faces[keep]
+    used = np.unique(faces)
+    new_index = np.full(len(verts), -1, dtype=np.int64)
+    new_index[used] = np.arange(len(used))
+    return verts[used], new_index[faces]
