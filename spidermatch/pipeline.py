@@ -1,0 +1,249 @@
+"""match(source, target, features, settings): the SpiderMatch pipeline without Hydra.
+
+mesh -> decimation -> SpiderCurve (source) -> product graph -> costs -> ILP -> HiGHS
+-> path -> point maps, with an independent check of every solution.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from spidermatch.correspondence import (
+    CheckReport,
+    MatchingPath,
+    SolutionError,
+    active_edges,
+    canonical_point_map,
+    check_solution,
+    extract_path,
+)
+from spidermatch.costs import RobustLoss, feature_cost_matrix, product_edge_costs
+from spidermatch.curve import SpiderCurve, spider_curve
+from spidermatch.ilp import FAMILIES, IlpModel, build_model
+from spidermatch.mesh import Mesh
+from spidermatch.product_graph import ProductGraph, build_product_graph
+from spidermatch.remesh import Decimated, decimate
+from spidermatch.solve.highs import SolveResult, SolverOptions
+from spidermatch.solve.strategies import solve_with_strategy
+
+logger = logging.getLogger(__name__)
+
+
+class MatchError(RuntimeError):
+    """A match did not produce a certified result; ``exit_code`` is the CLI's exit status."""
+
+    exit_code = 1
+
+
+class InfeasibleError(MatchError):
+    """No geometrically consistent matching exists for this discretisation."""
+
+    exit_code = 3
+
+
+class NoSolutionError(MatchError):
+    """The solver stopped (time limit) before finding any consistent matching."""
+
+    exit_code = 4
+
+
+class SolverFailure(MatchError):
+    """The solver failed or returned a solution that does not pass the checker."""
+
+    exit_code = 5
+
+
+@dataclass(frozen=True)
+class MatchSettings:
+    """Everything that decides a match, as plain values.
+
+    Attributes
+    ----------
+    resolution : int
+        Target face count of both decimated meshes.
+    decimation : str
+        "shortest_edge" or "qslim" (see :func:`spidermatch.remesh.decimate`).
+    curve_augmented, target_augmented : bool
+        Use augmented edges for the SpiderCurve's graph / the target's product edges.
+    curve_seed : int
+    loss : RobustLoss
+    constraints : tuple of str
+        Constraint families to impose (all four by default).
+    solver : SolverOptions
+    strategy : str
+        Solving strategy name (see :mod:`spidermatch.solve.strategies`).
+    """
+
+    resolution: int = 1000
+    decimation: str = "shortest_edge"
+    curve_augmented: bool = False
+    target_augmented: bool = False
+    curve_seed: int = 0
+    loss: RobustLoss = field(default_factory=RobustLoss)
+    constraints: tuple = FAMILIES
+    solver: SolverOptions = field(default_factory=SolverOptions)
+    strategy: str = "plain"
+
+
+@dataclass(eq=False)
+class MatchResult:
+    """Everything a match produced.
+
+    Attributes
+    ----------
+    source, target : Decimated
+        Low-resolution meshes (centred) and their maps to the full-resolution vertices.
+    curve : SpiderCurve
+    graph : ProductGraph
+    solve : SolveResult
+    path : MatchingPath or None
+    low_map : np.ndarray, shape (V_X_low,), or None
+        Low-resolution target vertex matched to each low-resolution source vertex.
+    check : CheckReport or None
+    timings : dict
+        Seconds per stage.
+    """
+
+    source: Decimated
+    target: Decimated
+    curve: SpiderCurve
+    graph: ProductGraph
+    solve: SolveResult
+    path: MatchingPath | None = None
+    low_map: np.ndarray | None = None
+    check: CheckReport | None = None
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def full_pairs(self) -> np.ndarray:
+        """(source, target) full-resolution vertex indices, one row per low-res source vertex."""
+        if self.low_map is None:
+            raise MatchError("no matching: " + self.solve.status)
+        return np.stack([self.source.to_full, self.target.to_full[self.low_map]], axis=1)
+
+    def raise_for_status(self) -> None:
+        """Raise the :class:`MatchError` subclass matching a failed solve or check."""
+        status = self.solve.status
+        if status == "infeasible":
+            raise InfeasibleError(
+                f"no geometrically consistent matching exists at {self.source.mesh.n_faces} faces "
+                "(the ILP is infeasible); try a higher resolution or another curve seed"
+            )
+        if status == "no_solution":
+            raise NoSolutionError(f"the solver stopped without any solution ({self.solve.message})")
+        if status == "error" or self.low_map is None:
+            raise SolverFailure(f"the solver failed: {self.solve.message}")
+        if self.check is not None and not self.check.ok:
+            raise SolverFailure("the solution fails the independent check: " + "; ".join(self.check.problems))
+
+
+@contextmanager
+def _stage(timings: dict, name: str):
+    logger.info("%s ...", name)
+    start = time.perf_counter()
+    yield
+    timings[name] = time.perf_counter() - start
+    logger.info("%s done in %.2f s", name, timings[name])
+
+
+def low_resolution_features(features: np.ndarray, to_full: np.ndarray) -> np.ndarray:
+    """Rows of full-resolution features (V, D) at the low-res vertices, L2-normalised."""
+    rows = np.asarray(features, dtype=np.float64)[to_full]
+    return rows / np.maximum(np.linalg.norm(rows, axis=1, keepdims=True), 1e-12)
+
+
+def prepare(
+    source: Mesh, target: Mesh, source_features: np.ndarray, target_features: np.ndarray,
+    settings: MatchSettings, timings: dict,
+) -> tuple[Decimated, Decimated, SpiderCurve, ProductGraph, IlpModel]:
+    """Decimate, trace the curve, build the product graph, the costs and the ILP."""
+    _check_features(source, source_features, "source")
+    _check_features(target, target_features, "target")
+    with _stage(timings, "decimate"):
+        low_x = decimate(source.centred(), settings.resolution, settings.decimation)
+        low_y = decimate(target.centred(), settings.resolution, settings.decimation)
+    with _stage(timings, "curve"):
+        curve = spider_curve(low_x.mesh, settings.curve_augmented, settings.curve_seed)
+    with _stage(timings, "costs"):
+        edges_y = low_y.mesh.augmented_edges if settings.target_augmented else low_y.mesh.edges
+        graph = build_product_graph(curve.length, low_y.mesh.n_verts, edges_y)
+        vertex_costs = feature_cost_matrix(
+            low_resolution_features(source_features, low_x.to_full),
+            low_resolution_features(target_features, low_y.to_full), settings.loss,
+        )
+        costs = product_edge_costs(graph, curve.vertices, low_x.mesh.verts, low_y.mesh.verts, vertex_costs)
+    with _stage(timings, "build"):
+        model = build_model(graph, curve, costs, tuple(settings.constraints))
+    logger.info(
+        "problem: %d source / %d target vertices, curve length %d, %d variables, %d rows, %d non-zeros",
+        low_x.mesh.n_verts, low_y.mesh.n_verts, curve.length, model.n_vars, model.n_rows, model.nnz,
+    )
+    return low_x, low_y, curve, graph, model
+
+
+def _check_features(mesh: Mesh, features: np.ndarray, role: str) -> None:
+    features = np.asarray(features)
+    if features.ndim != 2 or features.shape[0] != mesh.n_verts:
+        raise ValueError(
+            f"{role} features must have shape ({mesh.n_verts}, D) for {mesh.name}, got {features.shape}"
+        )
+    if not np.isfinite(features).all():
+        raise ValueError(f"{role} features of {mesh.name} contain NaN or infinite values")
+
+
+def match(
+    source: Mesh, target: Mesh, source_features: np.ndarray, target_features: np.ndarray,
+    settings: MatchSettings | None = None,
+) -> MatchResult:
+    """Globally optimal, geometrically consistent matching of ``source`` to ``target``.
+
+    Parameters
+    ----------
+    source, target : Mesh
+        Full-resolution meshes (V_X and V_Y vertices).
+    source_features : np.ndarray, shape (V_X, D)
+    target_features : np.ndarray, shape (V_Y, D)
+        Per-vertex descriptors on the full-resolution meshes.
+    settings : MatchSettings
+
+    Returns
+    -------
+    MatchResult
+        Always returned; call :meth:`MatchResult.raise_for_status` to turn an
+        infeasible, unsolved or unchecked result into an exception.
+    """
+    settings = settings or MatchSettings()
+    timings: dict = {}
+    low_x, low_y, curve, graph, model = prepare(
+        source, target, source_features, target_features, settings, timings
+    )
+    with _stage(timings, "solve"):
+        solved = solve_with_strategy(settings.strategy, model, graph, curve, settings.solver)
+    logger.info(
+        "solver: %s, objective %.6g, bound %.6g, gap %.2e", solved.status, solved.objective, solved.bound, solved.gap
+    )
+    result = MatchResult(low_x, low_y, curve, graph, solved, timings=timings)
+    if solved.x is not None:
+        with _stage(timings, "check"):
+            _read_solution(result)
+    return result
+
+
+def _read_solution(result: MatchResult) -> None:
+    tuples = active_edges(result.graph, result.solve.x)
+    target_edges = result.graph.target_edges[: result.graph.target_edges.shape[0] // 2]
+    result.check = check_solution(result.curve.vertices, target_edges, result.graph.n_target, tuples)
+    if not result.check.ok:
+        logger.error("solution check failed: %s", "; ".join(result.check.problems))
+        return
+    try:
+        result.path = extract_path(result.graph, result.solve.x)
+    except SolutionError as error:
+        result.check = CheckReport(False, (str(error),))
+        return
+    result.low_map = canonical_point_map(result.path, result.curve.vertices, result.source.mesh.n_verts)

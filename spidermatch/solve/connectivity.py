@@ -1,0 +1,83 @@
+"""Connectivity cuts: keep the SpiderMatch solution one closed path.
+
+The ILP of method.md admits, besides the path through all layers, detached
+cycles of intra-layer edges: in a self-intersection layer they can pad the
+out-flows that (PES) compares, which ANS does not count. A single closed walk
+never has them, so for every node set S inside one layer and every v in S
+
+    sum_{e leaving S} x_e  -  sum_{e leaving v} x_e  >=  0            (GSEC)
+
+holds for every single closed walk (a walk that visits v must leave S again,
+since it passes through every layer). The cuts are added lazily, only for the
+detached cycles a solution actually has.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from spidermatch.correspondence import _euler_walk, active_edges
+from spidermatch.product_graph import INTRA, ProductGraph
+
+
+def detached_components(graph: ProductGraph, x: np.ndarray) -> list[np.ndarray]:
+    """Node sets of the active edges not on the closed walk through layer 0's entry.
+
+    Returns
+    -------
+    list of np.ndarray
+        Each array holds product vertex ids ``layer * V_Y + y`` of one detached component.
+    """
+    tuples = active_edges(graph, x)
+    crossing_into_0 = tuples[(tuples[:, 4] != INTRA) & (tuples[:, 2] == 0)]
+    if len(crossing_into_0) != 1:
+        return []  # not a CYC-feasible solution; nothing to separate here
+    walk = _euler_walk(tuples, (0, int(crossing_into_0[0, 3])))
+    rest = np.setdiff1d(np.arange(len(tuples)), walk)
+    if rest.size == 0:
+        return []
+    tails = tuples[rest, 0] * graph.n_target + tuples[rest, 1]
+    heads = tuples[rest, 2] * graph.n_target + tuples[rest, 3]
+    nodes, index = np.unique(np.concatenate([tails, heads]), return_inverse=True)
+    adjacency = sp.coo_matrix(
+        (np.ones(rest.size), (index[: rest.size], index[rest.size :])), shape=(nodes.size, nodes.size)
+    )
+    n_components, labels = connected_components(adjacency, directed=False)
+    return [nodes[labels == c] for c in range(n_components)]
+
+
+def connectivity_cuts(graph: ProductGraph, components: list[np.ndarray]) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
+    """GSEC rows (one per node of every component) separating the given detached components.
+
+    Returns
+    -------
+    rows : scipy.sparse.csr_matrix, shape (k, |E_P|)
+    lower, upper : np.ndarray, shape (k,)
+        ``0 <= rows @ x <= inf``.
+    """
+    order = np.argsort(graph.block_src, kind="stable")
+    starts = np.searchsorted(graph.block_src[order], np.arange(graph.n_target + 1))
+    row_ids, col_ids, values = [], [], []
+    n_rows = 0
+    for nodes in components:
+        layer = int(nodes[0] // graph.n_target)
+        members = nodes % graph.n_target
+        inside = np.zeros(graph.n_target, dtype=bool)
+        inside[members] = True
+        entries = np.concatenate([order[starts[y] : starts[y + 1]] for y in members])
+        leaving = entries[(graph.block_kind[entries] != INTRA) | ~inside[graph.block_dst[entries]]]
+        for y in members:
+            own = order[starts[y] : starts[y + 1]]
+            cols = np.concatenate([leaving, own]) + layer * graph.block_size
+            row_ids.append(np.full(cols.size, n_rows))
+            col_ids.append(cols)
+            values.append(np.concatenate([np.ones(leaving.size), -np.ones(own.size)]))
+            n_rows += 1
+    rows = sp.coo_matrix(
+        (np.concatenate(values), (np.concatenate(row_ids), np.concatenate(col_ids))),
+        shape=(n_rows, graph.n_edges),
+    ).tocsr()
+    rows.sum_duplicates()
+    return rows, np.zeros(n_rows), np.full(n_rows, np.inf)

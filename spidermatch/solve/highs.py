@@ -1,0 +1,244 @@
+"""The one module that talks to HiGHS (highspy).
+
+The model is passed column-wise in a single ``passModel`` call. Every solve
+reports status, objective, best bound, relative gap, wall time and problem size.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import highspy
+import numpy as np
+
+from spidermatch.ilp import IlpModel
+
+logger = logging.getLogger(__name__)
+
+_PROCESS_THREADS: int | None = None  # HiGHS fixes its thread pool at the first solve of a process
+_STATUS = highspy.HighsModelStatus
+_STOPPED = {
+    _STATUS.kTimeLimit, _STATUS.kIterationLimit, _STATUS.kSolutionLimit,
+    _STATUS.kInterrupt, _STATUS.kObjectiveBound, _STATUS.kObjectiveTarget,
+}
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Options of one HiGHS solve.
+
+    Attributes
+    ----------
+    time_limit : float
+        Seconds; ``inf`` for none.
+    mip_rel_gap : float
+        Stop when (objective - bound) / objective <= this (HiGHS's default is 1e-4).
+    threads : int
+        Worker threads (0: HiGHS chooses). Fixed for the whole process by the first solve.
+    presolve : str
+        "choose", "on" or "off".
+    log : bool
+        Show HiGHS's own log.
+    extra : dict
+        Any further HiGHS options by name.
+    """
+
+    time_limit: float = math.inf
+    mip_rel_gap: float = 1e-4
+    threads: int = 0
+    presolve: str = "choose"
+    log: bool = False
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SolveResult:
+    """Outcome of a solve.
+
+    Attributes
+    ----------
+    status : str
+        "optimal" (within ``mip_rel_gap``), "feasible" (stopped with an incumbent, not
+        proven), "infeasible", "no_solution" (stopped before any incumbent) or "error".
+    x : np.ndarray, shape (n,), or None
+        The solution, rounded to 0/1 for MIPs.
+    objective, bound, gap : float
+        Incumbent value, best proven lower bound, relative gap (nan when undefined).
+    wall_time : float
+    n_vars, n_rows, nnz : int
+    message : str
+        HiGHS's model status in words.
+    """
+
+    status: str
+    x: np.ndarray | None
+    objective: float
+    bound: float
+    gap: float
+    wall_time: float
+    n_vars: int
+    n_rows: int
+    nnz: int
+    message: str = ""
+
+    @property
+    def proven_optimal(self) -> bool:
+        """True if the solution is certified optimal within the relative gap."""
+        return self.status == "optimal"
+
+    def summary(self) -> dict:
+        """JSON-ready figures (no solution vector)."""
+        return {
+            "status": self.status, "proven_optimal": self.proven_optimal,
+            "objective": _finite_or_none(self.objective), "bound": _finite_or_none(self.bound),
+            "gap": _finite_or_none(self.gap), "solve_time_s": round(self.wall_time, 3),
+            "variables": self.n_vars, "rows": self.n_rows, "nonzeros": self.nnz, "message": self.message,
+        }
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if value is not None and math.isfinite(value) else None
+
+
+def relative_gap(objective: float, bound: float) -> float:
+    """(objective - bound) / |objective|, 0 when both are 0, nan when undefined."""
+    if not (math.isfinite(objective) and math.isfinite(bound)):
+        return math.nan
+    if objective == bound:
+        return 0.0
+    return max(objective - bound, 0.0) / max(abs(objective), 1e-300)
+
+
+def _configure(highs, options: SolverOptions) -> None:
+    global _PROCESS_THREADS
+    highs.setOptionValue("output_flag", bool(options.log))
+    if math.isfinite(options.time_limit):
+        highs.setOptionValue("time_limit", float(options.time_limit))
+    highs.setOptionValue("mip_rel_gap", float(options.mip_rel_gap))
+    highs.setOptionValue("presolve", options.presolve)
+    if _PROCESS_THREADS is None:
+        _PROCESS_THREADS = int(options.threads)
+    elif options.threads != _PROCESS_THREADS:
+        logger.warning(
+            "HiGHS threads are fixed per process: keeping %d, ignoring %d", _PROCESS_THREADS, options.threads
+        )
+    if _PROCESS_THREADS:
+        highs.setOptionValue("threads", _PROCESS_THREADS)
+    for name, value in options.extra.items():
+        highs.setOptionValue(name, value)
+
+
+def _pass_model(highs, model: IlpModel, integer: bool) -> None:
+    matrix = model.matrix
+    n, m = model.n_vars, model.n_rows
+    integrality = np.full(n, 1 if integer else 0, dtype=np.int32)
+    status = highs.passModel(
+        n, m, int(matrix.nnz), int(highspy.MatrixFormat.kColwise), int(highspy.ObjSense.kMinimize), 0.0,
+        model.costs, np.zeros(n), np.ones(n),
+        np.asarray(model.row_lower, dtype=np.float64), np.asarray(model.row_upper, dtype=np.float64),
+        matrix.indptr.astype(np.int32), matrix.indices.astype(np.int32), matrix.data.astype(np.float64),
+        integrality,
+    )
+    if status == highspy.HighsStatus.kError:
+        raise RuntimeError(f"HiGHS rejected the model ({n} columns, {m} rows)")
+
+
+class HighsSession:
+    """A model loaded into HiGHS that can be solved, extended with rows and solved again.
+
+    Parameters
+    ----------
+    model : IlpModel
+    options : SolverOptions
+    relax : bool
+        Solve the LP relaxation (x in [0, 1]) instead of the ILP.
+    """
+
+    def __init__(self, model: IlpModel, options: SolverOptions | None = None, relax: bool = False) -> None:
+        self.options = options or SolverOptions()
+        self.relax = relax
+        self.n_vars = model.n_vars
+        self.n_rows = model.n_rows
+        self.nnz = model.nnz
+        self.highs = highspy.Highs()
+        _configure(self.highs, self.options)
+        _pass_model(self.highs, model, integer=not relax)
+
+    def set_solution(self, x: np.ndarray) -> None:
+        """Offer a feasible 0/1 vector (n,) as a starting incumbent."""
+        index = np.arange(self.n_vars, dtype=np.int32)
+        self.highs.setSolution(self.n_vars, index, np.asarray(x, dtype=np.float64))
+
+    def add_rows(self, rows, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Append constraints ``lower <= rows @ x <= upper`` (rows: scipy sparse, (k, n))."""
+        rows = rows.tocsr()
+        self.highs.addRows(
+            rows.shape[0], np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64),
+            int(rows.nnz), rows.indptr.astype(np.int32), rows.indices.astype(np.int32),
+            rows.data.astype(np.float64),
+        )
+        self.n_rows += rows.shape[0]
+        self.nnz += int(rows.nnz)
+
+    def run(self, time_limit: float | None = None) -> SolveResult:
+        """Solve (again) and read the result; ``time_limit`` overrides the option for this run."""
+        if time_limit is not None:
+            self.highs.setOptionValue("time_limit", max(float(time_limit), 1e-3))
+        start = time.perf_counter()
+        self.highs.run()
+        return _read_result(self, time.perf_counter() - start)
+
+
+def solve_model(
+    model: IlpModel,
+    options: SolverOptions | None = None,
+    initial_solution: np.ndarray | None = None,
+    relax: bool = False,
+) -> SolveResult:
+    """Solve the ILP (or its LP relaxation) once with HiGHS.
+
+    Parameters
+    ----------
+    model : IlpModel
+    options : SolverOptions
+    initial_solution : np.ndarray, shape (n,), optional
+        A feasible 0/1 vector handed to HiGHS as a starting incumbent.
+    relax : bool
+        Solve the LP relaxation (x in [0, 1]) instead.
+    """
+    start = time.perf_counter()
+    session = HighsSession(model, options, relax)
+    if initial_solution is not None:
+        session.set_solution(initial_solution)
+    result = session.run()
+    return replace(result, wall_time=time.perf_counter() - start)
+
+
+def _read_result(session: HighsSession, wall: float) -> SolveResult:
+    highs, relax = session.highs, session.relax
+    status = highs.getModelStatus()
+    info = highs.getInfo()
+    message = highs.modelStatusToString(status)
+    has_solution = info.primal_solution_status == 2  # kSolutionStatusFeasible
+    x = np.asarray(highs.getSolution().col_value, dtype=np.float64) if has_solution else None
+    if x is not None and not relax:
+        x = np.rint(np.clip(x, 0.0, 1.0))
+    objective = float(info.objective_function_value) if has_solution else math.inf
+    bound = objective if relax and status == _STATUS.kOptimal else float(info.mip_dual_bound)
+    if status == _STATUS.kOptimal and has_solution:
+        kind = "optimal"
+    elif status in (_STATUS.kInfeasible, _STATUS.kUnboundedOrInfeasible):
+        kind = "infeasible"
+    elif has_solution and status in _STOPPED:
+        kind = "feasible"
+    elif status in _STOPPED:
+        kind = "no_solution"
+    else:
+        kind = "error"
+    return SolveResult(
+        kind, x, objective, bound, relative_gap(objective, bound), wall,
+        session.n_vars, session.n_rows, session.nnz, message,
+    )
