@@ -28,6 +28,7 @@ class MatchingPath:
         starting with the edge that enters layer 0.
     entry : np.ndarray, shape (L,)
         Target vertex at which the path enters each layer.
+
     """
 
     edges: np.ndarray
@@ -53,6 +54,7 @@ def extract_path(graph: ProductGraph, x: np.ndarray) -> MatchingPath:
     ------
     SolutionError
         If the active edges do not form one closed walk that crosses every layer boundary once.
+
     """
     tuples = active_edges(graph, x)
     crossing = tuples[tuples[:, 4] != INTRA]
@@ -126,6 +128,7 @@ def check_solution(
     once; in-flow equals out-flow everywhere; the edges form one closed walk; layers
     of one self-intersection visit the same target vertices (PES); no target vertex
     is entered twice by non-degenerate edges outside self-intersection layers (ANS).
+
     """
     n_layers = len(curve_vertices)
     problems: list[str] = []
@@ -140,16 +143,22 @@ def check_solution(
     return CheckReport(not problems, tuple(problems))
 
 
-def _check_edges_exist(tuples: np.ndarray, target_edges: np.ndarray, n_layers: int, n_target: int) -> list[str]:
+def _check_edges_exist(
+    tuples: np.ndarray, target_edges: np.ndarray, n_layers: int, n_target: int
+) -> list[str]:
     edge_set = {(int(a), int(b)) for a, b in target_edges} | {(int(b), int(a)) for a, b in target_edges}
     bad = []
     for layer, a, nxt, b, kind in tuples.tolist():
         same_layer = nxt == layer
         next_layer = nxt == (layer + 1) % n_layers
-        valid = 0 <= a < n_target and 0 <= b < n_target and (
-            (kind == INTRA and same_layer and (a, b) in edge_set)
-            or (kind == STAY and next_layer and a == b)
-            or (kind not in (INTRA, STAY) and next_layer and (a, b) in edge_set)
+        valid = (
+            0 <= a < n_target
+            and 0 <= b < n_target
+            and (
+                (kind == INTRA and same_layer and (a, b) in edge_set)
+                or (kind == STAY and next_layer and a == b)
+                or (kind not in (INTRA, STAY) and next_layer and (a, b) in edge_set)
+            )
         )
         if not valid:
             bad.append((layer, a, nxt, b, kind))
@@ -177,17 +186,23 @@ def _check_intersections_preserved(curve_vertices: np.ndarray, tuples: np.ndarra
     for layer, vertex in enumerate(curve_vertices.tolist()):
         layers_of[vertex].append(layer)
     broken = [
-        vertex for vertex, layers in layers_of.items()
-        if len(layers) > 1 and any(out_visits[l] != out_visits[layers[0]] for l in layers[1:])
+        vertex
+        for vertex, layers in layers_of.items()
+        if len(layers) > 1 and any(out_visits[other] != out_visits[layers[0]] for other in layers[1:])
     ]
-    return [f"{len(broken)} self-intersections not preserved (first: source vertex {broken[0]})"] if broken else []
+    return (
+        [f"{len(broken)} self-intersections not preserved (first: source vertex {broken[0]})"]
+        if broken
+        else []
+    )
 
 
 def _check_no_new_intersections(curve_vertices: np.ndarray, tuples: np.ndarray) -> list[str]:
     counts = Counter(curve_vertices.tolist())
     free = [counts[v] == 1 for v in curve_vertices.tolist()]
     entered = Counter(
-        b for layer, a, nxt, b, kind in tuples.tolist()
+        b
+        for layer, a, nxt, b, kind in tuples.tolist()
         if kind != STAY and a != b and free[layer] and free[nxt]
     )
     twice = [y for y, n in entered.items() if n > 1]

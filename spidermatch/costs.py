@@ -29,6 +29,7 @@ class RobustLoss:
         Scale c > 0.
     bowl_exponent : float
         Exponent p > 0.
+
     """
 
     alpha: float = 2.0
@@ -66,6 +67,7 @@ def feature_cost_matrix(
     Returns
     -------
     np.ndarray, shape (V_X, V_Y)
+
     """
     if source_features.shape[1] != target_features.shape[1]:
         raise ValueError(
@@ -101,6 +103,7 @@ def product_edge_costs(
     Returns
     -------
     np.ndarray, shape (|E_P|,)
+
     """
     p = curve_vertices[graph.layer]
     q = curve_vertices[graph.next_layer]

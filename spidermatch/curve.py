@@ -32,6 +32,7 @@ class SpiderCurve:
         Mesh vertex at each curve position (layer); c_L = c_0.
     n_mesh_verts : int
         V, the number of vertices of the mesh it traces.
+
     """
 
     vertices: np.ndarray
@@ -74,6 +75,7 @@ def check_curve(curve: SpiderCurve, edges: np.ndarray) -> None:
     curve : SpiderCurve
     edges : np.ndarray, shape (E, 2)
         Undirected edges the curve may step along.
+
     """
     c = curve.vertices
     missing = np.setdiff1d(np.arange(curve.n_mesh_verts), c)
@@ -83,7 +85,9 @@ def check_curve(curve: SpiderCurve, edges: np.ndarray) -> None:
     allowed = {tuple(e) for e in np.sort(edges, axis=1).tolist()}
     bad = [i for i, step in enumerate(map(tuple, steps.tolist())) if step not in allowed]
     if bad:
-        raise CurveError(f"curve step {bad[0]} -> {(bad[0] + 1) % len(c)} ({steps[bad[0]].tolist()}) is not an edge")
+        raise CurveError(
+            f"curve step {bad[0]} -> {(bad[0] + 1) % len(c)} ({steps[bad[0]].tolist()}) is not an edge"
+        )
 
 
 def spider_curve(mesh: Mesh, augmented: bool = False, seed: int = 0) -> SpiderCurve:
@@ -102,6 +106,7 @@ def spider_curve(mesh: Mesh, augmented: bool = False, seed: int = 0) -> SpiderCu
     -------
     SpiderCurve
         L >= V positions; consecutive positions are adjacent in the chosen graph.
+
     """
     graph = mesh.edge_graph(augmented)
     distances, predecessors = shortest_path(graph, directed=False, return_predecessors=True)
@@ -112,7 +117,9 @@ def spider_curve(mesh: Mesh, augmented: bool = False, seed: int = 0) -> SpiderCu
     check_curve(curve, mesh.augmented_edges if augmented else mesh.edges)
     logger.debug(
         "SpiderCurve: %d positions over %d vertices, %d self-intersections",
-        curve.length, mesh.n_verts, curve.intersections.size,
+        curve.length,
+        mesh.n_verts,
+        curve.intersections.size,
     )
     return curve
 
@@ -131,6 +138,7 @@ def christofides_tour(distances: np.ndarray, start: int = 0) -> np.ndarray:
     -------
     np.ndarray, shape (N,)
         Every vertex once, in tour order (the tour closes back to ``start``).
+
     """
     import networkx as nx
 
@@ -158,7 +166,9 @@ def _min_weight_perfect_matching(distances: np.ndarray, odd: np.ndarray) -> list
 
     complete = nx.Graph()
     i, j = np.triu_indices(odd.size, k=1)
-    complete.add_weighted_edges_from(zip(odd[i].tolist(), odd[j].tolist(), distances[odd[i], odd[j]].tolist()))
+    complete.add_weighted_edges_from(
+        zip(odd[i].tolist(), odd[j].tolist(), distances[odd[i], odd[j]].tolist())
+    )
     return [(int(a), int(b)) for a, b in nx.min_weight_matching(complete)]
 
 
@@ -176,6 +186,7 @@ def expand_tour(tour: np.ndarray, predecessors: np.ndarray) -> np.ndarray:
     -------
     np.ndarray, shape (L,)
         Cyclic sequence in which consecutive entries are graph-adjacent.
+
     """
     sequence: list[int] = []
     for a, b in zip(tour.tolist(), np.roll(tour, -1).tolist()):

@@ -38,6 +38,7 @@ class Shape:
     mesh : Mesh
     corr : np.ndarray, shape (K,), or None
         0-based vertex of each shared reference point, if ground truth is known.
+
     """
 
     name: str
@@ -77,6 +78,7 @@ class ShapeFolder:
     ----------
     root : str or PathLike
         The dataset folder.
+
     """
 
     def __init__(self, root: str | os.PathLike) -> None:
@@ -122,6 +124,7 @@ class SyntheticShapes:
         Shape i uses seed ``seed + i``.
     n_refs : int
         Number of shared reference points for the ground truth.
+
     """
 
     def __init__(self, n_shapes: int = 6, n_verts: int = 2000, seed: int = 0, n_refs: int = 1000) -> None:

@@ -27,6 +27,7 @@ class MapEvaluation:
     n_approximated : int
         Evaluated source points that are not reference points themselves and
         borrowed the ground truth of the nearest reference point (sparse maps only).
+
     """
 
     errors: np.ndarray
@@ -67,6 +68,7 @@ def pointwise_geodesic_errors(
     Returns
     -------
     np.ndarray, shape (N,)
+
     """
     predicted = np.asarray(predicted, dtype=np.int64)
     truth = np.asarray(truth, dtype=np.int64)
@@ -74,7 +76,9 @@ def pointwise_geodesic_errors(
         raise ValueError(f"predicted {predicted.shape} and truth {truth.shape} must have one shape")
     for label, indices in (("predicted", predicted), ("true", truth)):
         if indices.size and (indices.min() < 0 or indices.max() >= target.n_verts):
-            raise ValueError(f"{label} target vertex out of range for {target.name} ({target.n_verts} vertices)")
+            raise ValueError(
+                f"{label} target vertex out of range for {target.name} ({target.n_verts} vertices)"
+            )
     errors = np.zeros(predicted.shape, dtype=np.float64)
     wrong = predicted != truth
     if wrong.any():
@@ -99,11 +103,14 @@ def dense_map_errors(
     src_corr, tgt_corr : np.ndarray, shape (K,)
         Reference points: source vertex ``src_corr[k]`` corresponds to ``tgt_corr[k]``.
     target : Mesh
+
     """
     src_to_tgt = np.asarray(src_to_tgt, dtype=np.int64)
     _check_corr(src_corr, tgt_corr)
     if np.asarray(src_corr).max() >= src_to_tgt.size:
-        raise ValueError(f"source reference index {int(np.max(src_corr))} beyond the map's {src_to_tgt.size} entries")
+        raise ValueError(
+            f"source reference index {int(np.max(src_corr))} beyond the map's {src_to_tgt.size} entries"
+        )
     errors = pointwise_geodesic_errors(target, src_to_tgt[src_corr], tgt_corr, geodesics)
     return MapEvaluation(errors)
 
@@ -129,6 +136,7 @@ def sparse_map_errors(
         Matched pairs in full-resolution vertex indices.
     source, target : Mesh
     src_corr, tgt_corr : np.ndarray, shape (K,)
+
     """
     src_vertices = np.asarray(src_vertices, dtype=np.int64)
     tgt_vertices = np.asarray(tgt_vertices, dtype=np.int64)
@@ -143,5 +151,6 @@ def sparse_map_errors(
 def _check_corr(src_corr: np.ndarray, tgt_corr: np.ndarray) -> None:
     if np.shape(src_corr) != np.shape(tgt_corr):
         raise ValueError(
-            f"source and target correspondence files differ in length ({np.size(src_corr)} vs {np.size(tgt_corr)})"
+            "source and target correspondence files differ in length "
+            f"({np.size(src_corr)} vs {np.size(tgt_corr)})"
         )

@@ -21,6 +21,7 @@ class GeodesicDistances:
         The surface (V vertices).
     t_coef : float
         Heat-method time step factor; 1.0 is the usual choice, smaller is sharper.
+
     """
 
     def __init__(self, mesh: Mesh, t_coef: float = 1.0) -> None:
@@ -45,6 +46,7 @@ class GeodesicDistances:
         Returns
         -------
         np.ndarray, shape (S, V)
+
         """
         vertices = np.asarray(vertices, dtype=np.int64).reshape(-1)
         out = np.empty((vertices.size, self.mesh.n_verts))

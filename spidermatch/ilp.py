@@ -32,6 +32,7 @@ class ConstraintBlock:
         Coordinates of the non-zeros (row within the block, product edge).
     values : np.ndarray, shape (nnz,)
     lower, upper : np.ndarray, shape (n_rows,)
+
     """
 
     name: str
@@ -58,6 +59,7 @@ class IlpModel:
     row_lower, row_upper : np.ndarray, shape (m,)
     row_families : dict[str, tuple[int, int]]
         Row range [start, stop) of each constraint family.
+
     """
 
     costs: np.ndarray
@@ -143,10 +145,12 @@ def ans_block(graph: ProductGraph, curve: SpiderCurve) -> ConstraintBlock:
     inter = np.flatnonzero((graph.block_kind != INTRA) & (graph.block_kind != STAY))
     intra_layers = layers[free_layer]
     inter_layers = layers[free_layer & np.roll(free_layer, -1)]
-    cols = np.concatenate([
-        (intra_layers[:, None] * graph.block_size + intra[None, :]).ravel(),
-        (inter_layers[:, None] * graph.block_size + inter[None, :]).ravel(),
-    ])
+    cols = np.concatenate(
+        [
+            (intra_layers[:, None] * graph.block_size + intra[None, :]).ravel(),
+            (inter_layers[:, None] * graph.block_size + inter[None, :]).ravel(),
+        ]
+    )
     rows = graph.block_dst[cols % graph.block_size]
     lower = np.full(graph.n_target, -np.inf)
     return ConstraintBlock("ANS", rows, cols, np.ones(cols.size), lower, np.ones(graph.n_target))
@@ -168,6 +172,7 @@ def build_model(
     costs : np.ndarray, shape (|E_P|,)
     families : tuple of str
         Subset of ("CYC", "CON", "PES", "ANS"), e.g. for ablations.
+
     """
     if curve.length != graph.n_layers:
         raise ValueError(f"curve has {curve.length} positions, product graph {graph.n_layers} layers")
@@ -177,8 +182,10 @@ def build_model(
     if unknown:
         raise ValueError(f"unknown constraint families {sorted(unknown)}; choose from {FAMILIES}")
     builders = {
-        "CYC": lambda: cyc_block(graph), "CON": lambda: con_block(graph),
-        "PES": lambda: pes_block(graph, curve), "ANS": lambda: ans_block(graph, curve),
+        "CYC": lambda: cyc_block(graph),
+        "CON": lambda: con_block(graph),
+        "PES": lambda: pes_block(graph, curve),
+        "ANS": lambda: ans_block(graph, curve),
     }
     blocks = [builders[name]() for name in FAMILIES if name in families]
     return stack_blocks(blocks, costs)
@@ -196,6 +203,9 @@ def stack_blocks(blocks: list[ConstraintBlock], costs: np.ndarray) -> IlpModel:
     matrix.indices = matrix.indices.astype(np.int32)
     families = {b.name: (int(off), int(off + b.n_rows)) for b, off in zip(blocks, offsets)}
     return IlpModel(
-        np.asarray(costs, dtype=np.float64), matrix,
-        np.concatenate([b.lower for b in blocks]), np.concatenate([b.upper for b in blocks]), families,
+        np.asarray(costs, dtype=np.float64),
+        matrix,
+        np.concatenate([b.lower for b in blocks]),
+        np.concatenate([b.upper for b in blocks]),
+        families,
     )

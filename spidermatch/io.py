@@ -34,6 +34,7 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
     ------
     MeshError
         The file is missing, has an unsupported type, cannot be parsed or fails validation.
+
     """
     path = Path(path)
     name = str(path)
@@ -89,6 +90,7 @@ def read_vts(path: str | os.PathLike, n_verts: int | None = None) -> np.ndarray:
     -------
     np.ndarray, shape (K,), int64
         0-based vertex indices; row k of two shapes' files correspond.
+
     """
     path = Path(path)
     if not path.is_file():
@@ -103,9 +105,7 @@ def read_vts(path: str | os.PathLike, n_verts: int | None = None) -> np.ndarray:
     if one_based.min() < 1:
         raise MeshError(f"{path}: .vts indices are 1-based, found {int(one_based.min())}")
     if n_verts is not None and one_based.max() > n_verts:
-        raise MeshError(
-            f"{path}: index {int(one_based.max())} exceeds the mesh's {n_verts} vertices"
-        )
+        raise MeshError(f"{path}: index {int(one_based.max())} exceeds the mesh's {n_verts} vertices")
     return one_based - 1
 
 

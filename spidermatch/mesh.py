@@ -32,6 +32,7 @@ class Mesh:
         Vertex indices of each triangle (read-only).
     name : str
         Where the mesh came from (file path or generator name), used in messages.
+
     """
 
     verts: np.ndarray
@@ -88,6 +89,7 @@ class Mesh:
         -------
         np.ndarray, shape (E_aug, 2)
             Unique undirected edges with ``i < j`` (method.md section 2).
+
         """
         return self._cached("augmented_edges", lambda: augment_edges(self.faces))
 
@@ -112,6 +114,7 @@ def triangle_areas(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     Returns
     -------
     np.ndarray, shape (F,)
+
     """
     a, b, c = (verts[faces[:, k]] for k in range(3))
     return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
@@ -119,9 +122,7 @@ def triangle_areas(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def face_edges(faces: np.ndarray) -> np.ndarray:
     """The three sorted edges of every face, shape (F, 3, 2); edge k is opposite corner k."""
-    opposite = np.stack(
-        [faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]], axis=1
-    )
+    opposite = np.stack([faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]], axis=1)
     return np.sort(opposite, axis=2)
 
 
@@ -144,6 +145,7 @@ def augment_edges(faces: np.ndarray) -> np.ndarray:
     Returns
     -------
     np.ndarray, shape (E_aug, 2), sorted rows with ``i < j``.
+
     """
     edges_per_face = face_edges(faces).reshape(-1, 2)
     opposite_vertex = faces.reshape(-1)  # corner k is opposite edge k
@@ -186,6 +188,7 @@ def validate_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") ->
     faces : np.ndarray, shape (F, 3)
     name : str
         Named in every error message (typically the file path).
+
     """
     verts = np.asarray(verts)
     faces = np.asarray(faces)

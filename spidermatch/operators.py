@@ -45,6 +45,7 @@ class Operators:
         Per-vertex gradient in the tangent basis (``frames``), if requested.
     frames : np.ndarray, shape (V, 3, 3), or None
         Per-vertex tangent basis rows (e1, e2, normal), if gradients were requested.
+
     """
 
     laplacian: sp.csr_matrix
@@ -73,6 +74,7 @@ def cotangent_laplacian(verts: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
     -------
     scipy.sparse.csr_matrix, shape (V, V)
         Symmetric, zero row sums, positive semi-definite for Delaunay meshes.
+
     """
     n = verts.shape[0]
     rows, cols, weights = [], [], []
@@ -99,9 +101,7 @@ def lumped_mass(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return mass
 
 
-def laplacian_eigenpairs(
-    laplacian: sp.csr_matrix, mass: np.ndarray, k: int
-) -> tuple[np.ndarray, np.ndarray]:
+def laplacian_eigenpairs(laplacian: sp.csr_matrix, mass: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """First ``k`` eigenpairs of ``L phi = lambda M phi`` (M = diag(mass)).
 
     Returns
@@ -109,6 +109,7 @@ def laplacian_eigenpairs(
     evals : np.ndarray, shape (K,)
     evecs : np.ndarray, shape (V, K), M-orthonormal.
     K = min(k, V).
+
     """
     n = laplacian.shape[0]
     k = min(k, n)
@@ -165,13 +166,16 @@ def gradient_operators(
     grad_x, grad_y : scipy.sparse.csr_matrix, shape (V, V)
         ``grad_x @ f`` is the e1 component of the gradient of f (V,).
     frames : np.ndarray, shape (V, 3, 3)
+
     """
     n = verts.shape[0]
     frames = tangent_frames(verts, faces)
     src = np.concatenate([edges[:, 0], edges[:, 1]])
     dst = np.concatenate([edges[:, 1], edges[:, 0]])
     offsets = verts[dst] - verts[src]
-    d = np.stack([np.einsum("ij,ij->i", offsets, frames[src, 0]), np.einsum("ij,ij->i", offsets, frames[src, 1])], 1)
+    d = np.stack(
+        [np.einsum("ij,ij->i", offsets, frames[src, 0]), np.einsum("ij,ij->i", offsets, frames[src, 1])], 1
+    )
     scale = np.mean(np.linalg.norm(d, axis=1)) ** 2
     normal_eq = np.zeros((n, 2, 2))
     np.add.at(normal_eq, src, np.einsum("ei,ej->eij", d, d))
@@ -195,6 +199,7 @@ def compute_operators(mesh: Mesh, k: int = 128, gradients: bool = False) -> Oper
         Number of eigenpairs (capped at V).
     gradients : bool
         Also compute tangent-plane gradient operators (used by DiffusionNet).
+
     """
     laplacian = cotangent_laplacian(mesh.verts, mesh.faces)
     mass = lumped_mass(mesh.verts, mesh.faces)
@@ -266,6 +271,11 @@ def _load_operators(path: Path) -> Operators:
 
         frames = data["frames"] if "frames" in data else None
         return Operators(
-            matrix("laplacian"), data["mass"], data["evals"], data["evecs"],
-            matrix("grad_x"), matrix("grad_y"), frames,
+            matrix("laplacian"),
+            data["mass"],
+            data["evals"],
+            data["evecs"],
+            matrix("grad_x"),
+            matrix("grad_y"),
+            frames,
         )

@@ -77,6 +77,7 @@ class MatchSettings:
     solver : SolverOptions
     strategy : str
         Solving strategy name (see :mod:`spidermatch.solve.strategies`).
+
     """
 
     resolution: int = 1000
@@ -107,6 +108,7 @@ class MatchResult:
     check : CheckReport or None
     timings : dict
         Seconds per stage.
+
     """
 
     source: Decimated
@@ -131,8 +133,9 @@ class MatchResult:
         status = self.solve.status
         if status == "infeasible":
             raise InfeasibleError(
-                f"no geometrically consistent matching exists at {self.source.mesh.n_faces} faces "
-                "(the ILP is infeasible); try a higher resolution or another curve seed"
+                "no geometrically consistent matching exists for this discretisation "
+                f"({self.graph.n_layers} curve positions x {self.graph.n_target} target vertices; the ILP "
+                "is infeasible): try a higher resolution or another curve seed"
             )
         if status == "no_solution":
             raise NoSolutionError(f"the solver stopped without any solution ({self.solve.message})")
@@ -158,8 +161,12 @@ def low_resolution_features(features: np.ndarray, to_full: np.ndarray) -> np.nda
 
 
 def prepare(
-    source: Mesh, target: Mesh, source_features: np.ndarray, target_features: np.ndarray,
-    settings: MatchSettings, timings: dict,
+    source: Mesh,
+    target: Mesh,
+    source_features: np.ndarray,
+    target_features: np.ndarray,
+    settings: MatchSettings,
+    timings: dict,
 ) -> tuple[Decimated, Decimated, SpiderCurve, ProductGraph, IlpModel]:
     """Decimate, trace the curve, build the product graph, the costs and the ILP."""
     _check_features(source, source_features, "source")
@@ -174,14 +181,20 @@ def prepare(
         graph = build_product_graph(curve.length, low_y.mesh.n_verts, edges_y)
         vertex_costs = feature_cost_matrix(
             low_resolution_features(source_features, low_x.to_full),
-            low_resolution_features(target_features, low_y.to_full), settings.loss,
+            low_resolution_features(target_features, low_y.to_full),
+            settings.loss,
         )
         costs = product_edge_costs(graph, curve.vertices, low_x.mesh.verts, low_y.mesh.verts, vertex_costs)
     with _stage(timings, "build"):
         model = build_model(graph, curve, costs, tuple(settings.constraints))
     logger.info(
         "problem: %d source / %d target vertices, curve length %d, %d variables, %d rows, %d non-zeros",
-        low_x.mesh.n_verts, low_y.mesh.n_verts, curve.length, model.n_vars, model.n_rows, model.nnz,
+        low_x.mesh.n_verts,
+        low_y.mesh.n_verts,
+        curve.length,
+        model.n_vars,
+        model.n_rows,
+        model.nnz,
     )
     return low_x, low_y, curve, graph, model
 
@@ -197,7 +210,10 @@ def _check_features(mesh: Mesh, features: np.ndarray, role: str) -> None:
 
 
 def match(
-    source: Mesh, target: Mesh, source_features: np.ndarray, target_features: np.ndarray,
+    source: Mesh,
+    target: Mesh,
+    source_features: np.ndarray,
+    target_features: np.ndarray,
     settings: MatchSettings | None = None,
 ) -> MatchResult:
     """Globally optimal, geometrically consistent matching of ``source`` to ``target``.
@@ -216,6 +232,7 @@ def match(
     MatchResult
         Always returned; call :meth:`MatchResult.raise_for_status` to turn an
         infeasible, unsolved or unchecked result into an exception.
+
     """
     settings = settings or MatchSettings()
     timings: dict = {}
@@ -225,7 +242,11 @@ def match(
     with _stage(timings, "solve"):
         solved = solve_with_strategy(settings.strategy, model, graph, curve, settings.solver)
     logger.info(
-        "solver: %s, objective %.6g, bound %.6g, gap %.2e", solved.status, solved.objective, solved.bound, solved.gap
+        "solver: %s, objective %.6g, bound %.6g, gap %.2e",
+        solved.status,
+        solved.objective,
+        solved.bound,
+        solved.gap,
     )
     result = MatchResult(low_x, low_y, curve, graph, solved, timings=timings)
     if solved.x is not None:

@@ -33,6 +33,7 @@ class ProductGraph:
         Target vertex an edge of one layer block leaves / enters.
     block_kind : np.ndarray, shape (B,), int8
         INTRA, INTER or STAY for each entry of a layer block.
+
     """
 
     n_layers: int
@@ -103,6 +104,7 @@ def build_product_graph(n_layers: int, n_target: int, target_edges: np.ndarray) 
         V_Y.
     target_edges : np.ndarray, shape (E, 2)
         Undirected target edges (plain or augmented).
+
     """
     directed = directed_edges(np.asarray(target_edges, dtype=np.int64))
     n_dir = directed.shape[0]

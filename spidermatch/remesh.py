@@ -23,6 +23,7 @@ class Decimated:
         The decimated mesh, V_low vertices.
     to_full : np.ndarray, shape (V_low,), int64
         For each low-resolution vertex, the nearest vertex of the full-resolution mesh.
+
     """
 
     mesh: Mesh
@@ -56,6 +57,7 @@ def decimate(mesh: Mesh, target_faces: int, method: str = "shortest_edge") -> De
     ------
     MeshError
         If the decimated mesh is not a single manifold surface (too few faces for the shape).
+
     """
     if target_faces < 4:
         raise MeshError(f"{mesh.name}: cannot decimate to {target_faces} faces (need at least 4)")

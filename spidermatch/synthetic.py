@@ -35,6 +35,7 @@ class Limb:
         Half-width of the limb on the parameter sphere, radians.
     bend_axis : np.ndarray, shape (3,)
         Axis the limb bends about (unit, orthogonal to ``direction``).
+
     """
 
     direction: np.ndarray
@@ -135,6 +136,7 @@ class SyntheticCreature:
     mesh : Mesh
     params : np.ndarray, shape (V, 3)
         Point of the unit sphere each vertex is the image of.
+
     """
 
     mesh: Mesh
@@ -157,6 +159,7 @@ def make_creature(n_verts: int = 2000, seed: int = 0, max_bend: float = 0.6) -> 
         Selects the pose and the sampling (and hence the connectivity).
     max_bend : float
         Largest limb bend in radians.
+
     """
     rng = np.random.default_rng(seed)
     n = int(n_verts * rng.uniform(0.95, 1.05))

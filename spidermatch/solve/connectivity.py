@@ -29,6 +29,7 @@ def detached_components(graph: ProductGraph, x: np.ndarray) -> list[np.ndarray]:
     -------
     list of np.ndarray
         Each array holds product vertex ids ``layer * V_Y + y`` of one detached component.
+
     """
     tuples = active_edges(graph, x)
     crossing_into_0 = tuples[(tuples[:, 4] != INTRA) & (tuples[:, 2] == 0)]
@@ -48,7 +49,9 @@ def detached_components(graph: ProductGraph, x: np.ndarray) -> list[np.ndarray]:
     return [nodes[labels == c] for c in range(n_components)]
 
 
-def connectivity_cuts(graph: ProductGraph, components: list[np.ndarray]) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
+def connectivity_cuts(
+    graph: ProductGraph, components: list[np.ndarray]
+) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
     """GSEC rows (one per node of every component) separating the given detached components.
 
     Returns
@@ -56,6 +59,7 @@ def connectivity_cuts(graph: ProductGraph, components: list[np.ndarray]) -> tupl
     rows : scipy.sparse.csr_matrix, shape (k, |E_P|)
     lower, upper : np.ndarray, shape (k,)
         ``0 <= rows @ x <= inf``.
+
     """
     order = np.argsort(graph.block_src, kind="stable")
     starts = np.searchsorted(graph.block_src[order], np.arange(graph.n_target + 1))

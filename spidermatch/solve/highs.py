@@ -21,8 +21,12 @@ logger = logging.getLogger(__name__)
 _PROCESS_THREADS: int | None = None  # HiGHS fixes its thread pool at the first solve of a process
 _STATUS = highspy.HighsModelStatus
 _STOPPED = {
-    _STATUS.kTimeLimit, _STATUS.kIterationLimit, _STATUS.kSolutionLimit,
-    _STATUS.kInterrupt, _STATUS.kObjectiveBound, _STATUS.kObjectiveTarget,
+    _STATUS.kTimeLimit,
+    _STATUS.kIterationLimit,
+    _STATUS.kSolutionLimit,
+    _STATUS.kInterrupt,
+    _STATUS.kObjectiveBound,
+    _STATUS.kObjectiveTarget,
 }
 
 
@@ -44,6 +48,7 @@ class SolverOptions:
         Show HiGHS's own log.
     extra : dict
         Any further HiGHS options by name.
+
     """
 
     time_limit: float = math.inf
@@ -71,6 +76,7 @@ class SolveResult:
     n_vars, n_rows, nnz : int
     message : str
         HiGHS's model status in words.
+
     """
 
     status: str
@@ -92,10 +98,16 @@ class SolveResult:
     def summary(self) -> dict:
         """JSON-ready figures (no solution vector)."""
         return {
-            "status": self.status, "proven_optimal": self.proven_optimal,
-            "objective": _finite_or_none(self.objective), "bound": _finite_or_none(self.bound),
-            "gap": _finite_or_none(self.gap), "solve_time_s": round(self.wall_time, 3),
-            "variables": self.n_vars, "rows": self.n_rows, "nonzeros": self.nnz, "message": self.message,
+            "status": self.status,
+            "proven_optimal": self.proven_optimal,
+            "objective": _finite_or_none(self.objective),
+            "bound": _finite_or_none(self.bound),
+            "gap": _finite_or_none(self.gap),
+            "solve_time_s": round(self.wall_time, 3),
+            "variables": self.n_vars,
+            "rows": self.n_rows,
+            "nonzeros": self.nnz,
+            "message": self.message,
         }
 
 
@@ -136,10 +148,20 @@ def _pass_model(highs, model: IlpModel, integer: bool) -> None:
     n, m = model.n_vars, model.n_rows
     integrality = np.full(n, 1 if integer else 0, dtype=np.int32)
     status = highs.passModel(
-        n, m, int(matrix.nnz), int(highspy.MatrixFormat.kColwise), int(highspy.ObjSense.kMinimize), 0.0,
-        model.costs, np.zeros(n), np.ones(n),
-        np.asarray(model.row_lower, dtype=np.float64), np.asarray(model.row_upper, dtype=np.float64),
-        matrix.indptr.astype(np.int32), matrix.indices.astype(np.int32), matrix.data.astype(np.float64),
+        n,
+        m,
+        int(matrix.nnz),
+        int(highspy.MatrixFormat.kColwise),
+        int(highspy.ObjSense.kMinimize),
+        0.0,
+        model.costs,
+        np.zeros(n),
+        np.ones(n),
+        np.asarray(model.row_lower, dtype=np.float64),
+        np.asarray(model.row_upper, dtype=np.float64),
+        matrix.indptr.astype(np.int32),
+        matrix.indices.astype(np.int32),
+        matrix.data.astype(np.float64),
         integrality,
     )
     if status == highspy.HighsStatus.kError:
@@ -155,6 +177,7 @@ class HighsSession:
     options : SolverOptions
     relax : bool
         Solve the LP relaxation (x in [0, 1]) instead of the ILP.
+
     """
 
     def __init__(self, model: IlpModel, options: SolverOptions | None = None, relax: bool = False) -> None:
@@ -176,8 +199,12 @@ class HighsSession:
         """Append constraints ``lower <= rows @ x <= upper`` (rows: scipy sparse, (k, n))."""
         rows = rows.tocsr()
         self.highs.addRows(
-            rows.shape[0], np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64),
-            int(rows.nnz), rows.indptr.astype(np.int32), rows.indices.astype(np.int32),
+            rows.shape[0],
+            np.asarray(lower, dtype=np.float64),
+            np.asarray(upper, dtype=np.float64),
+            int(rows.nnz),
+            rows.indptr.astype(np.int32),
+            rows.indices.astype(np.int32),
             rows.data.astype(np.float64),
         )
         self.n_rows += rows.shape[0]
@@ -208,6 +235,7 @@ def solve_model(
         A feasible 0/1 vector handed to HiGHS as a starting incumbent.
     relax : bool
         Solve the LP relaxation (x in [0, 1]) instead.
+
     """
     start = time.perf_counter()
     session = HighsSession(model, options, relax)
@@ -239,6 +267,14 @@ def _read_result(session: HighsSession, wall: float) -> SolveResult:
     else:
         kind = "error"
     return SolveResult(
-        kind, x, objective, bound, relative_gap(objective, bound), wall,
-        session.n_vars, session.n_rows, session.nnz, message,
+        kind,
+        x,
+        objective,
+        bound,
+        relative_gap(objective, bound),
+        wall,
+        session.n_vars,
+        session.n_rows,
+        session.nnz,
+        message,
     )

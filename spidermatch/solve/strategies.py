@@ -27,7 +27,9 @@ Strategy = Callable[[IlpModel, ProductGraph, SpiderCurve, SolverOptions], SolveR
 MAX_CUT_ROUNDS = 100
 
 
-def solve_plain(model: IlpModel, graph: ProductGraph, curve: SpiderCurve, options: SolverOptions) -> SolveResult:
+def solve_plain(
+    model: IlpModel, graph: ProductGraph, curve: SpiderCurve, options: SolverOptions
+) -> SolveResult:
     """The full model to HiGHS, with lazy connectivity cuts."""
     start = time.perf_counter()
     session = HighsSession(model, options)
@@ -40,9 +42,16 @@ def solve_plain(model: IlpModel, graph: ProductGraph, curve: SpiderCurve, option
             break
         remaining = options.time_limit - (time.perf_counter() - start)
         if remaining <= 0:
-            return replace(result, status="no_solution", x=None, message="time limit during connectivity cuts")
+            return replace(
+                result, status="no_solution", x=None, message="time limit during connectivity cuts"
+            )
         rows, lower, upper = connectivity_cuts(graph, components)
-        logger.info("cut round %d: %d detached cycles, %d connectivity cuts", round_number, len(components), rows.shape[0])
+        logger.info(
+            "cut round %d: %d detached cycles, %d connectivity cuts",
+            round_number,
+            len(components),
+            rows.shape[0],
+        )
         session.add_rows(rows, lower, upper)
         result = session.run(time_limit=remaining if math.isfinite(remaining) else None)
     return replace(result, wall_time=time.perf_counter() - start)

@@ -1,0 +1,29 @@
+import numpy as np
+import pytest
+import trimesh
+
+from spidermatch.mesh import Mesh
+
+
+@pytest.fixture(autouse=True)
+def _private_cache(tmp_path_factory, monkeypatch):
+    """Every test session writes operator caches to its own folder, never ~/.cache."""
+    monkeypatch.setenv("SPIDERMATCH_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(1234)
+
+
+def icosphere(subdivisions: int = 3, radius: float = 1.0) -> Mesh:
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    return Mesh(np.asarray(sphere.vertices), np.asarray(sphere.faces), f"icosphere({subdivisions})")
+
+
+def random_rotation(rng) -> np.ndarray:
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    if np.linalg.det(q) < 0:
+        q[:, 0] = -q[:, 0]
+    return q

@@ -1,0 +1,151 @@
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from spidermatch.correspondence import active_edges, check_solution, extract_path
+from spidermatch.curve import SpiderCurve, spider_curve
+from spidermatch.ilp import ConstraintBlock, IlpModel, build_model, cyc_block, stack_blocks
+from spidermatch.pipeline import InfeasibleError, MatchResult
+from spidermatch.product_graph import INTER, INTRA, STAY, build_product_graph
+from spidermatch.remesh import decimate
+from spidermatch.solve.highs import SolverOptions, solve_model
+from spidermatch.solve.strategies import solve_plain, solve_with_strategy
+from spidermatch.synthetic import make_creature
+
+TRIANGLE = np.array([[0, 1], [1, 2], [0, 2]])
+
+
+def instance(curve_vertices, target_edges, n_target, seed):
+    curve = SpiderCurve(np.asarray(curve_vertices), int(max(curve_vertices)) + 1)
+    graph = build_product_graph(curve.length, n_target, target_edges)
+    costs = np.random.default_rng(seed).uniform(0.1, 1.0, graph.n_edges)
+    return curve, graph, costs
+
+
+def edge_id(graph, layer, a, b, kind):
+    n_dir = graph.target_edges.shape[0]
+    if kind == STAY:
+        return layer * graph.block_size + 2 * n_dir + a
+    k = int(np.flatnonzero((graph.target_edges[:, 0] == a) & (graph.target_edges[:, 1] == b))[0])
+    return layer * graph.block_size + k + (n_dir if kind == INTER else 0)
+
+
+def simple_paths(start, neighbours):
+    stack = [[start]]
+    while stack:
+        path = stack.pop()
+        yield path
+        stack.extend(path + [b] for b in neighbours[path[-1]] if b not in path)
+
+
+def brute_force(curve, graph, costs):
+    """Cheapest single closed walk passing the independent checker (within-layer walks simple)."""
+    neighbours = {y: [] for y in range(graph.n_target)}
+    for a, b in graph.target_edges.tolist():
+        neighbours[a].append(b)
+    candidates = []
+
+    def layer_options(layer, entry):
+        for path in simple_paths(entry, neighbours):
+            intra = [edge_id(graph, layer, a, b, INTRA) for a, b in zip(path, path[1:])]
+            last = path[-1]
+            yield intra + [edge_id(graph, layer, last, last, STAY)], last
+            for b in neighbours[last]:
+                yield intra + [edge_id(graph, layer, last, b, INTER)], b
+
+    def descend(layer, entry, start, chosen):
+        if layer == curve.length:
+            if entry == start:
+                candidates.append((costs[chosen].sum(), list(chosen)))
+            return
+        for ids, exit_vertex in layer_options(layer, entry):
+            descend(layer + 1, exit_vertex, start, chosen + ids)
+
+    for start in range(graph.n_target):
+        descend(0, start, start, [])
+    target_edges = graph.target_edges[: graph.target_edges.shape[0] // 2]
+    for cost, ids in sorted(candidates, key=lambda c: c[0]):
+        if check_solution(curve.vertices, target_edges, graph.n_target, graph.edge_tuples(np.array(ids))).ok:
+            return cost
+    return None
+
+
+@pytest.mark.parametrize("curve_vertices", [[0, 1, 0, 2], [0, 1, 2, 3], [0, 1, 0, 1], [0, 1, 2, 1]])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_ilp_optimum_equals_brute_force(curve_vertices, seed):
+    curve, graph, costs = instance(curve_vertices, TRIANGLE, 3, seed)
+    model = build_model(graph, curve, costs)
+    exact = solve_plain(model, graph, curve, SolverOptions(mip_rel_gap=0.0))
+    assert exact.status == "optimal"
+    expected = brute_force(curve, graph, costs)
+    assert exact.objective == pytest.approx(expected, rel=1e-9)
+    assert exact.bound <= exact.objective + 1e-9
+    target_edges = graph.target_edges[:3]
+    assert check_solution(curve.vertices, target_edges, 3, active_edges(graph, exact.x)).ok
+    # the ILP of method.md without connectivity cuts is a relaxation: never above the optimum
+    relaxed = solve_model(model, SolverOptions(mip_rel_gap=0.0))
+    assert relaxed.objective <= expected + 1e-9
+
+
+def test_infeasible_instance_is_reported():
+    curve, graph, costs = instance([0, 1, 0, 2], TRIANGLE, 3, 0)
+    model = build_model(graph, curve, costs)
+    cyc = cyc_block(graph)
+    # demand two boundary crossings out of layer 0 on top of CYC's one: impossible
+    impossible = ConstraintBlock(
+        "X",
+        cyc.rows[cyc.rows == 0] * 0,
+        cyc.cols[cyc.rows == 0],
+        cyc.values[cyc.rows == 0],
+        np.array([2.0]),
+        np.array([2.0]),
+    )
+    extra = stack_blocks([impossible], costs)
+    combined = IlpModel(
+        costs,
+        sp.vstack([model.matrix, extra.matrix]).tocsc(),
+        np.concatenate([model.row_lower, [2.0]]),
+        np.concatenate([model.row_upper, [2.0]]),
+        {},
+    )
+    solved = solve_with_strategy("plain", combined, graph, curve, SolverOptions())
+    assert solved.status == "infeasible" and solved.x is None
+    result = MatchResult(None, None, curve, graph, solved)
+    with pytest.raises(InfeasibleError, match="infeasible"):
+        result.raise_for_status()
+
+
+def test_product_graph_and_model_sizes_follow_formula():
+    low = decimate(make_creature(1500, seed=5).mesh, 120)
+    target = decimate(make_creature(1500, seed=6).mesh, 140).mesh
+    curve = spider_curve(low.mesh)
+    graph = build_product_graph(curve.length, target.n_verts, target.edges)
+    n_dir = 2 * len(target.edges)
+    assert graph.n_edges == curve.length * (2 * n_dir + target.n_verts)
+    model = build_model(graph, curve, np.ones(graph.n_edges))
+    n_dup = curve.length - low.mesh.n_verts
+    assert (
+        model.n_rows == curve.length + curve.length * target.n_verts + n_dup * target.n_verts + target.n_verts
+    )
+    assert model.row_families["PES"][1] - model.row_families["PES"][0] == n_dup * target.n_verts
+    # each edge: +1 tail and -1 head in CON, and one CYC entry if it crosses a boundary
+    con = model.matrix[slice(*model.row_families["CON"])]
+    np.testing.assert_array_equal(np.asarray(con.sum(axis=0)).ravel(), 0)
+    assert (abs(con).sum(axis=0) == 2).all()
+
+
+def test_checker_detects_broken_solutions():
+    curve, graph, costs = instance([0, 1, 0, 2], TRIANGLE, 3, 3)
+    solved = solve_plain(build_model(graph, curve, costs), graph, curve, SolverOptions())
+    tuples = active_edges(graph, solved.x)
+    edges = graph.target_edges[:3]
+    assert check_solution(curve.vertices, edges, 3, tuples).ok
+    assert not check_solution(curve.vertices, edges, 3, tuples[1:]).ok  # a missing edge
+    detached = np.array([[1, 0, 1, 1, INTRA], [1, 1, 1, 0, INTRA]])
+    report = check_solution(curve.vertices, edges, 3, np.vstack([tuples, detached]))
+    assert not report.ok
+    bogus = tuples.copy()
+    bogus[0, 4] = INTRA if bogus[0, 4] != INTRA else STAY
+    assert not check_solution(curve.vertices, edges, 3, bogus).ok
+    path = extract_path(graph, solved.x)
+    assert len(path.entry) == 4 and len(path.edges) == len(tuples)
