@@ -1,0 +1,93 @@
+"""Headless figures (matplotlib, imported lazily): correspondence renders."""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from spidermatch.mesh import Mesh
+
+logger = logging.getLogger(__name__)
+
+VIEWS = ((15.0, -60.0), (15.0, 120.0))
+
+
+def position_colours(verts: np.ndarray) -> np.ndarray:
+    """RGB in [0, 1] from normalised vertex positions, shape (V, 3)."""
+    low, high = verts.min(axis=0), verts.max(axis=0)
+    return 0.15 + 0.85 * (verts - low) / np.maximum(high - low, 1e-12)
+
+
+def transferred_colours(
+    source_colours: np.ndarray, src_vertices: np.ndarray, tgt_vertices: np.ndarray, target: Mesh
+) -> np.ndarray:
+    """Colour every target vertex like the source vertex matched to its nearest matched target vertex.
+
+    Parameters
+    ----------
+    source_colours : np.ndarray, shape (V_X, 3)
+    src_vertices, tgt_vertices : np.ndarray, shape (N,)
+        Matched pairs (source vertex, target vertex).
+    target : Mesh
+
+    Returns
+    -------
+    np.ndarray, shape (V_Y, 3)
+    """
+    _, nearest = cKDTree(target.verts[tgt_vertices]).query(target.verts)
+    return source_colours[src_vertices[nearest]]
+
+
+def _draw(ax, mesh: Mesh, colours: np.ndarray, view: tuple[float, float]) -> None:
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    triangles = mesh.verts[mesh.faces]
+    collection = Poly3DCollection(triangles, facecolors=colours[mesh.faces].mean(axis=1), linewidths=0)
+    ax.add_collection3d(collection)
+    low, high = mesh.verts.min(axis=0), mesh.verts.max(axis=0)
+    centre, half = (low + high) / 2, (high - low).max() / 2
+    for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+        setter(c - half, c + half)
+    ax.view_init(elev=view[0], azim=view[1], vertical_axis="y")
+    ax.set_axis_off()
+
+
+def save_correspondence_png(
+    source: Mesh, target: Mesh, src_vertices: np.ndarray, tgt_vertices: np.ndarray,
+    path: str | os.PathLike, title: str = "",
+) -> Path:
+    """Render source and target side by side, the target coloured through the map.
+
+    Parameters
+    ----------
+    source, target : Mesh
+        Full-resolution meshes.
+    src_vertices, tgt_vertices : np.ndarray, shape (N,)
+        Matched full-resolution vertex pairs.
+    path : str or PathLike
+        PNG file to write.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colours_x = position_colours(source.verts)
+    colours_y = transferred_colours(colours_x, np.asarray(src_vertices), np.asarray(tgt_vertices), target)
+    figure = plt.figure(figsize=(4 * len(VIEWS), 8))
+    for row, (mesh, colours, label) in enumerate(((source, colours_x, "source"), (target, colours_y, "target"))):
+        for column, view in enumerate(VIEWS):
+            ax = figure.add_subplot(2, len(VIEWS), row * len(VIEWS) + column + 1, projection="3d")
+            _draw(ax, mesh, colours, view)
+            ax.set_title(label, fontsize=9)
+    if title:
+        figure.suptitle(title, fontsize=10)
+    figure.tight_layout()
+    path = Path(path)
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+    return path

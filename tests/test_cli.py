@@ -1,0 +1,72 @@
+import csv
+import json
+
+import numpy as np
+import pytest
+from hydra import compose, initialize_config_module
+
+from spidermatch.cli import run_match
+from spidermatch.datasets import SyntheticShapes, write_dataset
+
+SMALL = ["data.n_verts=800", "data.resolution=100"]
+
+
+def config(overrides):
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        return compose(config_name="match", overrides=overrides)
+
+
+@pytest.mark.parametrize("group", ["features=wks", "curve.augmented=true", "costs.target_augmented=true"])
+def test_every_config_group_composes_and_runs(tmp_path, group):
+    cfg = config(SMALL + [group])
+    assert run_match(cfg, tmp_path) == 0
+    result = json.loads((tmp_path / "result.json").read_text())
+    assert result["status"] == "optimal" and result["check"]["ok"]
+    assert result["bound"] <= result["objective"] + 1e-9
+    assert set(result["timings_s"]) >= {"features", "decimate", "curve", "costs", "build", "solve", "check"}
+    assert 0 <= result["geodesic_error"]["mean"] < 0.3
+    rows = list(csv.reader((tmp_path / "matches.csv").open()))
+    assert rows[0] == ["source_vertex", "target_vertex"]
+    assert len(rows) - 1 == result["source_low_res"]["vertices"]
+    assert (tmp_path / "correspondence.png").stat().st_size > 10_000
+
+
+def test_user_files_with_ground_truth(tmp_path):
+    shapes = SyntheticShapes(n_shapes=2, n_verts=800)
+    root = write_dataset(shapes, tmp_path / "data")
+    cfg = config([
+        f"source={root}/off/creature_000.off", f"target={root}/off/creature_001.off",
+        f"source_corr={root}/corres/creature_000.vts", f"target_corr={root}/corres/creature_001.vts",
+        "resolution=100", "output.png=false",
+    ])
+    out = tmp_path / "run"
+    assert run_match(cfg, out) == 0
+    result = json.loads((out / "result.json").read_text())
+    assert result["resolution"] == 100 and "geodesic_error" in result
+    pairs = np.loadtxt(out / "matches.csv", delimiter=",", skiprows=1, dtype=int)
+    assert pairs[:, 0].max() < shapes.load("creature_000").mesh.n_verts
+    assert pairs[:, 1].max() < shapes.load("creature_001").mesh.n_verts
+    assert not (out / "correspondence.png").exists()
+
+
+def test_bad_input_is_reported_with_exit_code_and_json(tmp_path):
+    broken = tmp_path / "broken.off"
+    broken.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n")
+    good = write_dataset(SyntheticShapes(n_shapes=1, n_verts=500), tmp_path / "d") / "off" / "creature_000.off"
+    cfg = config([f"source={broken}", f"target={good}"])
+    assert run_match(cfg, tmp_path / "run") == 2
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert result["status"] == "input_error" and "broken.off" in result["error"]
+    cfg = config([f"source={good}"])
+    assert run_match(cfg, tmp_path / "run2") == 2
+    assert "give both" in json.loads((tmp_path / "run2" / "result.json").read_text())["error"]
+
+
+def test_time_limit_without_solution_exits_non_zero(tmp_path):
+    cfg = config(SMALL + ["solver.time_limit=0.001"])
+    code = run_match(cfg, tmp_path)
+    result = json.loads((tmp_path / "result.json").read_text())
+    if result["status"] == "feasible":  # HiGHS found an incumbent anyway: returned, not proven
+        assert code == 0 and result["proven_optimal"] is False
+    else:
+        assert code == 4 and result["status"] == "no_solution" and "stopped" in result["error"]

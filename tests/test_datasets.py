@@ -1,0 +1,80 @@
+import numpy as np
+import pytest
+
+from spidermatch.datasets import DatasetError, ShapeFolder, SyntheticShapes, open_dataset, write_dataset
+from spidermatch.evaluate import cumulative_curve, dense_map_errors, sparse_map_errors
+from spidermatch.remesh import decimate
+from spidermatch.synthetic import creature_pair_ground_truth, make_creature
+
+
+def test_synthetic_shapes_are_seeded_and_meshed_independently():
+    a, a_again, b = make_creature(2000, 0), make_creature(2000, 0), make_creature(2000, 1)
+    np.testing.assert_array_equal(a.mesh.verts, a_again.mesh.verts)
+    assert a.mesh.n_verts != b.mesh.n_verts or not np.array_equal(a.mesh.faces, b.mesh.faces)
+    # ground truth: corresponding points lie at the same place of the rest shape's parameter sphere
+    gt = creature_pair_ground_truth(a, b)
+    assert np.mean(np.linalg.norm(a.params - b.params[gt], axis=1)) < 0.05
+
+
+def test_synthetic_ground_truth_is_consistent_between_shapes():
+    shapes = SyntheticShapes(n_shapes=3, n_verts=1500)
+    x, y = shapes.load("creature_000"), shapes.load("creature_001")
+    assert x.corr.shape == y.corr.shape == (1000,)
+    # the true map composed with itself is (nearly) the identity at the reference points
+    evaluation = dense_map_errors(np.arange(x.mesh.n_verts), x.corr, x.corr, x.mesh)
+    assert evaluation.mean == 0.0
+    assert len(shapes.pairs()) == 6
+
+
+def test_write_and_read_folder_round_trip(tmp_path):
+    shapes = SyntheticShapes(n_shapes=2, n_verts=600)
+    write_dataset(shapes, tmp_path)
+    folder = open_dataset(tmp_path)
+    assert isinstance(folder, ShapeFolder) and folder.names == shapes.names
+    loaded, original = folder.load("creature_001"), shapes.load("creature_001")
+    np.testing.assert_allclose(loaded.mesh.verts, original.mesh.verts, atol=1e-6)
+    np.testing.assert_array_equal(loaded.corr, original.corr)
+    pairs_file = tmp_path / "pairs.txt"
+    pairs_file.write_text("# pairs\ncreature_000 creature_001\ncreature_001,creature_000\n")
+    assert folder.pairs(pairs_file) == [("creature_000", "creature_001"), ("creature_001", "creature_000")]
+    pairs_file.write_text("creature_000 nobody\n")
+    with pytest.raises(DatasetError, match="pairs.txt:1: unknown shape 'nobody'"):
+        folder.pairs(pairs_file)
+    with pytest.raises(DatasetError, match="expected a folder 'off/'"):
+        ShapeFolder(tmp_path / "off")
+
+
+def test_identity_map_has_zero_error_and_curve_is_cumulative(rng):
+    mesh = make_creature(1000, 2).mesh
+    corr = rng.choice(mesh.n_verts, 200, replace=False)
+    assert dense_map_errors(np.arange(mesh.n_verts), corr, corr, mesh).mean == 0.0
+    shuffled = rng.permutation(mesh.n_verts)
+    evaluation = dense_map_errors(shuffled, corr, corr, mesh)
+    assert evaluation.mean > 0.1
+    thresholds, curve = evaluation.curve()
+    assert curve[0] >= 0 and curve[-1] <= 1 and np.all(np.diff(curve) >= 0)
+    np.testing.assert_allclose(cumulative_curve(np.array([0.0, 0.1, 0.3]), np.array([0.0, 0.1, 0.25])), [1 / 3, 2 / 3, 2 / 3])
+
+
+def test_sparse_map_uses_nearest_reference_point():
+    mesh = make_creature(1000, 3).mesh
+    low = decimate(mesh, 200)
+    corr = np.arange(mesh.n_verts)
+    evaluation = sparse_map_errors(low.to_full, low.to_full, mesh, corr, corr, mesh)
+    assert evaluation.mean == 0.0 and evaluation.n_approximated == 0
+    partial = corr[::2]
+    evaluation = sparse_map_errors(low.to_full, low.to_full, mesh, partial, partial, mesh)
+    assert evaluation.mean < 0.05
+
+
+def test_decimation_hits_face_count_and_maps_to_nearest_vertex():
+    mesh = make_creature(2000, 4).mesh
+    for faces in (100, 500):
+        low = decimate(mesh, faces)
+        assert low.mesh.n_faces == faces
+        assert low.to_full.shape == (low.mesh.n_verts,)
+        distance = np.linalg.norm(mesh.verts[low.to_full] - low.mesh.verts, axis=1)
+        all_distances = np.linalg.norm(low.mesh.verts[:, None] - mesh.verts[None], axis=2)
+        np.testing.assert_allclose(distance, all_distances.min(axis=1))
+    same = decimate(mesh, 10**6)
+    assert same.mesh is mesh and np.array_equal(same.to_full, np.arange(mesh.n_verts))
