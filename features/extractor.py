@@ -33,6 +33,7 @@ class WKSExtractor:
         Descriptor dimension D.
     n_eig : int
         Number of Laplacian eigenpairs K used.
+
     """
 
     name = "wks"

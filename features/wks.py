@@ -28,6 +28,7 @@ def wave_kernel_signature(
     Returns
     -------
     np.ndarray, shape (V, D)
+
     """
     if evals.ndim != 1 or evecs.ndim != 2 or evecs.shape[1] != evals.shape[0]:
         raise ValueError(f"evals (K,) and evecs (V, K) expected, got {evals.shape} and {evecs.shape}")

@@ -129,11 +129,30 @@ def result_summary(result: MatchResult, inputs: MatchInputs, feature_name: str) 
 
 def run_match(cfg, output_dir: Path) -> int:
     """Run one match and write its outputs into ``output_dir``; return the exit code."""
+    return run_pair(cfg, output_dir, lambda: load_inputs(cfg), lambda inputs: compute_features(cfg, inputs))
+
+
+def run_pair(cfg, output_dir: Path, get_inputs, get_features) -> int:
+    """Load a pair, match it and write its outputs; ``result.json`` is written whatever happens.
+
+    Parameters
+    ----------
+    cfg : DictConfig
+        Needs the groups curve, costs, solver and output.
+    output_dir : Path
+    get_inputs : callable () -> MatchInputs
+    get_features : callable (MatchInputs) -> (features_x (V_X, D), features_y (V_Y, D), name)
+
+    Returns
+    -------
+    int
+        The exit code (0 on success).
+    """
     output_dir.mkdir(parents=True, exist_ok=True)
     report: dict = {"status": "started", "output_dir": str(output_dir)}
     started = time.perf_counter()
     try:
-        return _run_stages(cfg, output_dir, report)
+        return _run_stages(cfg, output_dir, report, get_inputs, get_features)
     except (MeshError, DatasetError, ValueError, FileNotFoundError) as error:
         logger.error("%s", error)
         report.update(status="input_error", error=str(error), exit_code=EXIT_BAD_INPUT)
@@ -145,13 +164,14 @@ def run_match(cfg, output_dir: Path) -> int:
             logger.info("wrote %s", output_dir / "result.json")
 
 
-def _run_stages(cfg, output_dir: Path, report: dict) -> int:
-    inputs = load_inputs(cfg)
-    report["input"] = inputs.description
+def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -> int:
+    inputs = get_inputs()
+    report.update(input=inputs.description, resolution=inputs.resolution)
     logger.info("matching %s at %d faces", inputs.description, inputs.resolution)
     start = time.perf_counter()
-    feat_x, feat_y, feature_name = compute_features(cfg, inputs)
+    feat_x, feat_y, feature_name = get_features(inputs)
     feature_time = time.perf_counter() - start
+    report["features"] = feature_name
     logger.info("features (%s) done in %.2f s", feature_name, feature_time)
     result = match(inputs.source, inputs.target, feat_x, feat_y, settings_from_config(cfg, inputs.resolution))
     report.update(result_summary(result, inputs, feature_name))
@@ -177,6 +197,7 @@ def _write_matching(cfg, output_dir: Path, result: MatchResult, inputs: MatchInp
             pairs[:, 0], pairs[:, 1], inputs.source, inputs.source_corr, inputs.target_corr, inputs.target
         )
         report["geodesic_error"] = {"mean": evaluation.mean, "n_points": int(evaluation.errors.size)}
+        np.save(output_dir / "geodesic_errors.npy", evaluation.errors)
         logger.info("mean geodesic error against ground truth: %.4f", evaluation.mean)
     if cfg.output.png:
         from spidermatch.plot import save_correspondence_png
@@ -191,21 +212,95 @@ def _write_matching(cfg, output_dir: Path, result: MatchResult, inputs: MatchInp
         logger.warning("the solver stopped early: this matching is NOT proven optimal (gap %.2e)", result.solve.gap)
 
 
+class FeatureMemo:
+    """Per-shape feature cache for a dataset run: each shape's features are computed once."""
+
+    def __init__(self, cfg) -> None:
+        from hydra.utils import instantiate
+
+        self.extractor = instantiate(cfg.features)
+        self.name = getattr(self.extractor, "name", type(self.extractor).__name__)
+        self._cache: dict[str, np.ndarray] = {}
+
+    def of(self, key: str, mesh: Mesh) -> np.ndarray:
+        """Features (V, D) of ``mesh`` (centred), computed on first use of ``key``."""
+        if key not in self._cache:
+            self._cache[key] = np.asarray(self.extractor(mesh.centred()))
+        return self._cache[key]
+
+    def pair(self, inputs: MatchInputs, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray, str]:
+        """Features of a pair; adaptive extractors (``pair_features``) are never cached."""
+        if hasattr(self.extractor, "pair_features"):
+            feat_x, feat_y = self.extractor.pair_features(inputs.source.centred(), inputs.target.centred())
+            return np.asarray(feat_x), np.asarray(feat_y), self.name
+        return self.of(names[0], inputs.source), self.of(names[1], inputs.target), self.name
+
+
+def run_eval(cfg, run_dir: Path) -> int:
+    """Match every selected pair of a dataset into ``run_dir``, resuming finished pairs."""
+    from tqdm.auto import tqdm
+
+    from spidermatch.batch import finished_result, pair_dir, select_pairs, summary_row, write_summary
+    from spidermatch.datasets import open_dataset
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        options = dict(cfg.synthetic) if cfg.dataset in (None, "", "synthetic") else {}
+        dataset = open_dataset(cfg.dataset, **options)
+        pairs = select_pairs(dataset.names, dataset.pairs(cfg.pairs_file), cfg.n_pairs, cfg.pair_seed)
+        memo = FeatureMemo(cfg)
+    except (DatasetError, MeshError, ValueError) as error:
+        logger.error("%s", error)
+        return EXIT_BAD_INPUT
+    settings = {"dataset": str(cfg.dataset), "resolution": cfg.resolution, "features": memo.name,
+                "strategy": cfg.solver.strategy, "pairs": len(pairs)}
+    rows = []
+    for source, target in tqdm(pairs, desc="pairs", unit="pair"):
+        folder = pair_dir(run_dir, source, target)
+        result = finished_result(folder)
+        if result is None:
+            run_pair(cfg, folder, lambda s=source, t=target: _dataset_inputs(dataset, s, t, cfg.resolution),
+                     lambda inputs, s=source, t=target: memo.pair(inputs, (s, t)))
+            result = finished_result(folder) or {"status": "error", "error": "no result.json written"}
+        else:
+            logger.info("skipping finished pair %s -> %s (%s)", source, target, result["status"])
+        rows.append(summary_row(source, target, result))
+        summary = write_summary(run_dir, rows, len(pairs), settings)
+    _plot_run(run_dir, memo.name)
+    logger.info("summary: %s", json.dumps({k: summary[k] for k in ("statuses", "geodesic_error")}))
+    logger.info("wrote %s and %s", run_dir / "summary.csv", run_dir / "summary.json")
+    return 0
+
+
+def _dataset_inputs(dataset, source: str, target: str, resolution: int) -> MatchInputs:
+    x, y = dataset.load(source), dataset.load(target)
+    return MatchInputs(x.mesh, y.mesh, x.corr, y.corr, int(resolution), f"{source} -> {target}")
+
+
+def _plot_run(run_dir: Path, label: str) -> None:
+    from spidermatch.batch import collect_errors
+    from spidermatch.plot import save_error_curves
+
+    errors = collect_errors(run_dir)
+    if errors.size:
+        save_error_curves({label: errors}, run_dir / "errors.png")
+
+
 def _configure_logging(level: str) -> None:
     logging.getLogger("spidermatch").setLevel(level)
     logging.getLogger("features").setLevel(level)
 
 
-def _hydra_app():
+def _hydra_app(run, config_name: str):
     import hydra
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode
 
-    @hydra.main(config_path="pkg://conf", config_name="match", version_base="1.3")
+    @hydra.main(config_path="pkg://conf", config_name=config_name, version_base="1.3")
     def app(cfg) -> None:
         _configure_logging(cfg.log_level)
         hydra_cfg = HydraConfig.get()
-        code = run_match(cfg, Path(hydra_cfg.runtime.output_dir))
+        code = run(cfg, Path(hydra_cfg.runtime.output_dir))
         if code and hydra_cfg.mode != RunMode.MULTIRUN:
             sys.exit(code)
 
@@ -214,7 +309,12 @@ def _hydra_app():
 
 def match_main() -> None:
     """Console entry point of ``spidermatch-match``."""
-    _hydra_app()()
+    _hydra_app(run_match, "match")()
+
+
+def eval_main() -> None:
+    """Console entry point of ``spidermatch-eval``."""
+    _hydra_app(run_eval, "eval")()
 
 
 if __name__ == "__main__":

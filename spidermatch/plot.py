@@ -91,3 +91,65 @@ def save_correspondence_png(
     figure.savefig(path, dpi=90)
     plt.close(figure)
     return path
+
+
+def save_error_curves(runs: dict[str, np.ndarray], path: str | os.PathLike, title: str = "") -> Path:
+    """Cumulative geodesic-error curves (% correct vs threshold 0-0.25), one line per run.
+
+    Parameters
+    ----------
+    runs : dict
+        Label -> per-point normalised geodesic errors (N,). The legend shows each mean.
+    path : str or PathLike
+        PNG file to write.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from spidermatch.evaluate import DEFAULT_THRESHOLDS, cumulative_curve
+
+    figure, ax = plt.subplots(figsize=(5, 4))
+    for label, errors in runs.items():
+        errors = np.asarray(errors, dtype=np.float64)
+        curve = 100.0 * cumulative_curve(errors, DEFAULT_THRESHOLDS)
+        ax.plot(DEFAULT_THRESHOLDS, curve, label=f"{label}: {errors.mean():.3f}", linewidth=2)
+    ax.set_xlim(0, 0.25)
+    ax.set_ylim(0, 100)
+    ax.set_xlabel("geodesic error threshold")
+    ax.set_ylabel("% correct matches")
+    ax.grid(alpha=0.3)
+    ax.legend(title="mean geodesic error", fontsize=8, loc="lower right")
+    ax.set_title(title or "% of correct points", fontsize=10)
+    figure.tight_layout()
+    path = Path(path)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path
+
+
+def save_curve_png(mesh: Mesh, curve_vertices: np.ndarray, path: str | os.PathLike, title: str = "") -> Path:
+    """Draw a SpiderCurve (L,) on its (low-resolution) mesh from two sides; repeated vertices marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    counts = np.bincount(curve_vertices, minlength=mesh.n_verts)
+    loop = np.append(curve_vertices, curve_vertices[0])
+    figure = plt.figure(figsize=(4 * len(VIEWS), 4.5))
+    for column, view in enumerate(VIEWS):
+        ax = figure.add_subplot(1, len(VIEWS), column + 1, projection="3d")
+        _draw(ax, mesh, np.full((mesh.n_verts, 3), 0.85), view)
+        points = mesh.verts[loop]
+        ax.plot(points[:, 0], points[:, 1], points[:, 2], color="tab:red", linewidth=1.0)
+        repeated = mesh.verts[counts > 1]
+        ax.scatter(repeated[:, 0], repeated[:, 1], repeated[:, 2], color="black", s=6)
+    figure.suptitle(title or f"SpiderCurve: {len(curve_vertices)} positions, {int((counts > 1).sum())} "
+                    "self-intersections (dots)", fontsize=10)
+    figure.tight_layout()
+    path = Path(path)
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+    return path

@@ -8,7 +8,7 @@ from hydra import compose, initialize_config_module
 from spidermatch.cli import run_match
 from spidermatch.datasets import SyntheticShapes, write_dataset
 
-SMALL = ["data.n_verts=800", "data.resolution=100"]
+SMALL = ["data.n_verts=700", "data.resolution=60"]
 
 
 def config(overrides):
@@ -32,17 +32,17 @@ def test_every_config_group_composes_and_runs(tmp_path, group):
 
 
 def test_user_files_with_ground_truth(tmp_path):
-    shapes = SyntheticShapes(n_shapes=2, n_verts=800)
+    shapes = SyntheticShapes(n_shapes=2, n_verts=700)
     root = write_dataset(shapes, tmp_path / "data")
     cfg = config([
         f"source={root}/off/creature_000.off", f"target={root}/off/creature_001.off",
         f"source_corr={root}/corres/creature_000.vts", f"target_corr={root}/corres/creature_001.vts",
-        "resolution=100", "output.png=false",
+        "resolution=60", "output.png=false",
     ])
     out = tmp_path / "run"
     assert run_match(cfg, out) == 0
     result = json.loads((out / "result.json").read_text())
-    assert result["resolution"] == 100 and "geodesic_error" in result
+    assert result["resolution"] == 60 and "geodesic_error" in result
     pairs = np.loadtxt(out / "matches.csv", delimiter=",", skiprows=1, dtype=int)
     assert pairs[:, 0].max() < shapes.load("creature_000").mesh.n_verts
     assert pairs[:, 1].max() < shapes.load("creature_001").mesh.n_verts

@@ -42,7 +42,8 @@ def test_eigenvectors_mass_orthonormal():
     np.testing.assert_allclose(gram, np.eye(20), atol=1e-8)
 
 
-def test_operator_cache_round_trip_and_corruption():
+def test_operator_cache_round_trip_and_corruption(tmp_path, monkeypatch):
+    monkeypatch.setenv("SPIDERMATCH_CACHE_DIR", str(tmp_path))
     mesh = make_creature(500, seed=2).mesh
     first = cached_operators(mesh, k=10, gradients=True)
     files = list(cache_dir().glob("*.npz"))

@@ -89,6 +89,7 @@ class SolveResult:
     n_rows: int
     nnz: int
     message: str = ""
+    cut_rounds: int = 0
 
     @property
     def proven_optimal(self) -> bool:
@@ -210,10 +211,12 @@ class HighsSession:
         self.n_rows += rows.shape[0]
         self.nnz += int(rows.nnz)
 
-    def run(self, time_limit: float | None = None) -> SolveResult:
-        """Solve (again) and read the result; ``time_limit`` overrides the option for this run."""
-        if time_limit is not None:
-            self.highs.setOptionValue("time_limit", max(float(time_limit), 1e-3))
+    def run(self) -> SolveResult:
+        """Solve (again) and read the result.
+
+        HiGHS's run clock, which its ``time_limit`` is checked against, keeps counting
+        across the runs of one session, so the limit bounds all runs together.
+        """
         start = time.perf_counter()
         self.highs.run()
         return _read_result(self, time.perf_counter() - start)

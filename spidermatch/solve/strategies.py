@@ -34,16 +34,18 @@ def solve_plain(
     start = time.perf_counter()
     session = HighsSession(model, options)
     result = session.run()
+    rounds = 0
     for round_number in range(1, MAX_CUT_ROUNDS + 1):
         if result.x is None:
             break
         components = detached_components(graph, result.x)
         if not components:
             break
-        remaining = options.time_limit - (time.perf_counter() - start)
-        if remaining <= 0:
+        if time.perf_counter() - start >= options.time_limit:
             return replace(
-                result, status="no_solution", x=None, message="time limit during connectivity cuts"
+                result, status="no_solution", x=None, objective=math.inf, gap=math.nan,
+                wall_time=time.perf_counter() - start, cut_rounds=rounds,
+                message="time limit reached while separating detached cycles",
             )
         rows, lower, upper = connectivity_cuts(graph, components)
         logger.info(
@@ -53,8 +55,9 @@ def solve_plain(
             rows.shape[0],
         )
         session.add_rows(rows, lower, upper)
-        result = session.run(time_limit=remaining if math.isfinite(remaining) else None)
-    return replace(result, wall_time=time.perf_counter() - start)
+        rounds = round_number
+        result = session.run()  # HiGHS's time limit counts the session's runs together
+    return replace(result, wall_time=time.perf_counter() - start, cut_rounds=rounds)
 
 
 STRATEGIES: dict[str, Strategy] = {"plain": solve_plain}

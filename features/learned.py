@@ -1,0 +1,233 @@
+"""Learned descriptors: a trained :class:`DiffusionNet` behind the feature-extractor interface.
+
+Checkpoints are written by ``train/`` (``spidermatch-train``); this module reads and
+validates them so that both inference and resuming a training run share one reader.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import logging
+import os
+import pickle
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
+from features.fmap import FmapLossConfig, fmap_terms
+from features.wks import normalise_rows
+from spidermatch.mesh import Mesh
+
+logger = logging.getLogger(__name__)
+
+CHECKPOINT_FORMAT = "spidermatch-diffusionnet"
+CHECKPOINT_VERSION = 1
+REQUIRED_KEYS = ("format", "version", "config", "step", "model")
+
+
+class CheckpointError(ValueError):
+    """A checkpoint is missing, unreadable or incompatible; the message names the file."""
+
+
+def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
+    """Load a checkpoint dictionary written by ``train/`` and check its framing.
+
+    Parameters
+    ----------
+    path : str or PathLike
+
+    Returns
+    -------
+    dict
+        With at least the keys ``format``, ``version``, ``config``, ``step`` and ``model``.
+
+    Raises
+    ------
+    CheckpointError
+        The file is missing, is not a readable torch checkpoint, or is not one of ours.
+
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no such checkpoint file")
+    if not zipfile.is_zipfile(path):
+        raise CheckpointError(f"{path}: corrupt or unreadable checkpoint (not a torch.save archive; "
+                              "truncated or overwritten?)")
+    damaged = _damaged_member(path)
+    if damaged is not None:
+        raise CheckpointError(f"{path}: corrupt checkpoint ({damaged})")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except (RuntimeError, EOFError, OSError, pickle.UnpicklingError, zipfile.BadZipFile,
+            ValueError, KeyError, AttributeError) as error:
+        raise CheckpointError(f"{path}: corrupt or unreadable checkpoint "
+                              f"({_last_line(error)})") from error
+    if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{path}: not a spidermatch training checkpoint "
+                              f"(expected format {CHECKPOINT_FORMAT!r})")
+    missing = [key for key in REQUIRED_KEYS if key not in data]
+    if missing:
+        raise CheckpointError(f"{path}: incomplete checkpoint, missing {', '.join(missing)}")
+    if data["version"] != CHECKPOINT_VERSION:
+        raise CheckpointError(f"{path}: checkpoint version {data['version']} is not supported "
+                              f"(expected {CHECKPOINT_VERSION})")
+    return data
+
+
+def _damaged_member(path: Path) -> str | None:
+    """Describe the first archive member failing its CRC-32 check, or None if all pass."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            name = archive.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as error:
+        return _last_line(error)
+    return None if name is None else f"checksum error in {name}"
+
+
+def _last_line(error: Exception) -> str:
+    """The last non-empty line of an exception's message (torch's are long)."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    return f"{type(error).__name__}: {lines[-1] if lines else ''}"
+
+
+def model_config_of(checkpoint: dict[str, Any], path: str | os.PathLike) -> ModelConfig:
+    """The :class:`ModelConfig` stored in a checkpoint, or :class:`CheckpointError`."""
+    stored = checkpoint["config"].get("model") if isinstance(checkpoint["config"], dict) else None
+    if not isinstance(stored, dict):
+        raise CheckpointError(f"{path}: incompatible checkpoint config (no 'model' section)")
+    try:
+        return ModelConfig(**stored)
+    except (TypeError, ValueError) as error:
+        raise CheckpointError(f"{path}: incompatible model config in checkpoint ({error})") from error
+
+
+def load_network(path: str | os.PathLike) -> tuple[DiffusionNet, ModelConfig, dict[str, Any]]:
+    """Rebuild the trained network of a checkpoint, in eval mode.
+
+    Returns
+    -------
+    network : DiffusionNet
+    config : ModelConfig
+    checkpoint : dict
+        The whole checkpoint dictionary.
+
+    """
+    checkpoint = read_checkpoint(path)
+    config = model_config_of(checkpoint, path)
+    network = DiffusionNet.from_config(config)
+    try:
+        network.load_state_dict(checkpoint["model"], strict=True)
+    except (RuntimeError, TypeError, AttributeError) as error:
+        raise CheckpointError(f"{path}: network weights do not match the stored model config "
+                              f"({error})") from error
+    network.eval()
+    return network, config, checkpoint
+
+
+def fmap_config_of(checkpoint: dict[str, Any]) -> FmapLossConfig:
+    """The unsupervised loss settings a checkpoint was trained with (defaults if absent)."""
+    stored = checkpoint["config"].get("loss") or {}
+    names = {field.name for field in dataclasses.fields(FmapLossConfig)}
+    return FmapLossConfig(**{key: value for key, value in stored.items() if key in names})
+
+
+class LearnedExtractor:
+    """Descriptors of a trained DiffusionNet, computed at full resolution.
+
+    Parameters
+    ----------
+    checkpoint : str
+        A ``last.pt`` or ``best.pt`` written by ``spidermatch-train``.
+    n_eig : int
+        Eigenpairs K; must equal the value the network was trained with.
+    adapt_steps : int
+        Test-time adaptation steps in :meth:`pair_features` (0 disables it).
+    adapt_lr : float
+        Adam learning rate of the adaptation.
+    adapt_faces : int, optional
+        Decimate both shapes to about this many faces for adaptation (default: the
+        training resolution stored in the checkpoint; full resolution if none).
+    use_cache : bool
+        Use the on-disk operator cache.
+
+    """
+
+    name = "learned"
+
+    def __init__(self, checkpoint: str, n_eig: int = 128, adapt_steps: int = 0,
+                 adapt_lr: float = 1e-3, adapt_faces: int | None = None,
+                 use_cache: bool = True) -> None:
+        self.checkpoint = str(checkpoint)
+        self.network, self.config, stored = load_network(checkpoint)
+        if n_eig != self.config.n_eig:
+            raise CheckpointError(f"{checkpoint}: the network was trained with n_eig = "
+                                  f"{self.config.n_eig}, but n_eig = {n_eig} was requested")
+        if adapt_steps < 0:
+            raise ValueError(f"adapt_steps must be >= 0, got {adapt_steps}")
+        self.n_eig = n_eig
+        self.adapt_steps = adapt_steps
+        self.adapt_lr = adapt_lr
+        data = stored["config"].get("data") or {}
+        self.adapt_faces = adapt_faces if adapt_faces is not None else data.get("target_faces")
+        self.loss_config = fmap_config_of(stored)
+        self.use_cache = use_cache
+
+    def __call__(self, mesh: Mesh) -> np.ndarray:
+        """Return descriptors of shape (V, C_out), rows L2-normalised, float64."""
+        return self._features(self.network, mesh)
+
+    def pair_features(self, mesh_x: Mesh, mesh_y: Mesh) -> tuple[np.ndarray, np.ndarray]:
+        """Descriptors of a pair, after test-time adaptation if ``adapt_steps > 0``.
+
+        Adaptation fine-tunes a copy of the network on the pair's unsupervised loss;
+        the extractor's own network is left unchanged.
+
+        Returns
+        -------
+        feat_x : np.ndarray, shape (V_x, C_out)
+        feat_y : np.ndarray, shape (V_y, C_out)
+
+        """
+        if self.adapt_steps == 0:
+            return self(mesh_x), self(mesh_y)
+        network = self.adapt(mesh_x, mesh_y)
+        return self._features(network, mesh_x), self._features(network, mesh_y)
+
+    def adapt(self, mesh_x: Mesh, mesh_y: Mesh) -> DiffusionNet:
+        """A copy of the network fine-tuned for ``adapt_steps`` Adam steps on this pair."""
+        inputs = [self._adaptation_input(mesh) for mesh in (mesh_x, mesh_y)]
+        network = copy.deepcopy(self.network)
+        network.train()
+        optimiser = torch.optim.Adam(network.parameters(), lr=self.adapt_lr)
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(0)
+            for step in range(self.adapt_steps):
+                optimiser.zero_grad()
+                feats = [network(item.features, item.ops) for item in inputs]
+                terms = fmap_terms(feats[0], feats[1], inputs[0].ops, inputs[1].ops,
+                                   self.loss_config)
+                loss = terms.weighted(self.loss_config)
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(network.parameters(), 1.0)
+                optimiser.step()
+                logger.debug("adaptation step %d: loss %.4f", step, loss.item())
+        network.eval()
+        return network
+
+    def _adaptation_input(self, mesh: Mesh) -> ShapeInput:
+        if self.adapt_faces is not None and mesh.n_faces > self.adapt_faces:
+            from spidermatch.remesh import decimate
+
+            mesh = decimate(mesh, int(self.adapt_faces)).mesh
+        return prepare_shape(mesh, self.config, use_cache=self.use_cache)
+
+    def _features(self, network: DiffusionNet, mesh: Mesh) -> np.ndarray:
+        shape = prepare_shape(mesh, self.config, use_cache=self.use_cache)
+        with torch.no_grad():
+            features = network(shape.features, shape.ops)
+        return normalise_rows(features.double().numpy())

@@ -1,0 +1,65 @@
+"""``spidermatch-collect DIR``: gather the summaries of evaluation runs (e.g. a sweep) into one table.
+
+Finds every ``summary.json`` below DIR, prints one row per run (its settings, pairs,
+failures, mean and median geodesic error, median solve time), writes ``DIR/collected.csv``
+and draws all runs' cumulative error curves into ``DIR/curves.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from pathlib import Path
+
+from spidermatch.batch import collect_errors
+
+COLUMNS = ("run", "features", "resolution", "strategy", "pairs", "finished", "failures",
+           "mean_error", "median_error", "median_solve_s")
+
+
+def collect(root: Path) -> list[dict]:
+    """One row per ``summary.json`` found below ``root``."""
+    rows = []
+    for path in sorted(root.rglob("summary.json")):
+        summary = json.loads(path.read_text())
+        settings = summary.get("settings", {})
+        rows.append({
+            "run": str(path.parent.relative_to(root)) or ".",
+            "features": settings.get("features"), "resolution": settings.get("resolution"),
+            "strategy": settings.get("strategy"), "pairs": summary.get("pairs_planned"),
+            "finished": summary.get("pairs_finished"), "failures": len(summary.get("failures", [])),
+            "mean_error": summary["geodesic_error"]["mean"], "median_error": summary["geodesic_error"]["median"],
+            "median_solve_s": summary["solve_s"]["median"],
+        })
+    return rows
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point."""
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("root", type=Path, help="folder holding evaluation runs (searched recursively)")
+    parser.add_argument("--no-plot", action="store_true", help="skip curves.png")
+    args = parser.parse_args(argv)
+    rows = collect(args.root)
+    if not rows:
+        raise SystemExit(f"{args.root}: no summary.json found below this folder")
+    print(" | ".join(COLUMNS))
+    for row in rows:
+        print(" | ".join(f"{row[c]:.4f}" if isinstance(row[c], float) else str(row[c]) for c in COLUMNS))
+    with (args.root / "collected.csv").open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(COLUMNS))
+        writer.writeheader()
+        writer.writerows(rows)
+    print(f"wrote {args.root / 'collected.csv'}")
+    if not args.no_plot:
+        from spidermatch.plot import save_error_curves
+
+        runs = {f"{r['run']}": collect_errors(args.root / r["run"]) for r in rows}
+        runs = {label: errors for label, errors in runs.items() if errors.size}
+        if runs:
+            print(f"wrote {save_error_curves(runs, args.root / 'curves.png')}")
+
+
+if __name__ == "__main__":
+    main()

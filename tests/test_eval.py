@@ -1,0 +1,72 @@
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from hydra import compose, initialize_config_module
+
+from spidermatch.batch import select_pairs
+from spidermatch.cli import run_eval
+from spidermatch.collect import main as collect_main
+from spidermatch.datasets import SyntheticShapes, write_dataset
+
+SMALL = ["resolution=60", "synthetic.n_verts=700"]
+
+
+def config(overrides):
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        return compose(config_name="eval", overrides=overrides)
+
+
+def test_select_pairs_is_seeded():
+    names = ["a", "b", "c", "d"]
+    pairs = [(x, y) for x in names for y in names if x != y]
+    assert select_pairs(names, pairs, 3, seed=1) == select_pairs(names, pairs, 3, seed=1)
+    assert len(select_pairs(names, pairs, 3, seed=1)) == 3
+    assert select_pairs(names, pairs) == pairs
+
+
+def test_broken_mesh_is_reported_and_other_pairs_complete(tmp_path):
+    root = write_dataset(SyntheticShapes(n_shapes=3, n_verts=700), tmp_path / "data")
+    (root / "off" / "creature_002.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 9\n")
+    pairs = tmp_path / "pairs.txt"
+    pairs.write_text("creature_000 creature_001\ncreature_002 creature_000\ncreature_001 creature_000\n")
+    cfg = config(SMALL + [f"dataset={root}", f"pairs_file={pairs}"])
+    assert run_eval(cfg, tmp_path / "run") == 0
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["pairs_finished"] == 3
+    assert summary["statuses"] == {"optimal": 2, "input_error": 1}
+    failure = summary["failures"][0]
+    assert failure["source"] == "creature_002" and "creature_002.off" in failure["reason"]
+    assert summary["geodesic_error"]["n"] == 2
+    csv_lines = (tmp_path / "run" / "summary.csv").read_text().splitlines()
+    assert len(csv_lines) == 4
+    assert (tmp_path / "run" / "errors.png").is_file()
+    collect_main([str(tmp_path)])
+    assert (tmp_path / "collected.csv").is_file() and (tmp_path / "curves.png").is_file()
+
+
+def test_killed_evaluation_resumes_only_missing_pairs(tmp_path):
+    run_dir = tmp_path / "outputs" / "eval" / "resume"
+    command = [sys.executable, "-m", "spidermatch.cli_eval", *SMALL, "synthetic.n_shapes=3", "name=resume"]
+    process = subprocess.Popen(command, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    pairs_dir = run_dir / "pairs"
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and len(list(pairs_dir.glob("*/result.json"))) < 2:
+        time.sleep(0.2)
+        assert process.poll() is None, "evaluation ended before it could be interrupted"
+    os.kill(process.pid, signal.SIGKILL)
+    process.wait()
+    done_before = {p.parent.name: p.stat().st_mtime_ns for p in pairs_dir.glob("*/result.json")}
+    assert 2 <= len(done_before) < 6
+    finished = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert finished.returncode == 0, finished.stderr[-2000:]
+    after = {p.parent.name: p.stat().st_mtime_ns for p in pairs_dir.glob("*/result.json")}
+    assert len(after) == 6
+    assert all(after[name] == stamp for name, stamp in done_before.items())  # not re-run
+    assert (finished.stdout + finished.stderr).count("skipping finished pair") == len(done_before)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["pairs_finished"] == 6

@@ -1,0 +1,216 @@
+"""Training: loss decrease, checkpoints, exact resume, bad checkpoints, config and data split."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from features.diffusion_net import ModelConfig
+from features.learned import CheckpointError
+from train.config import DataConfig, OptimConfig, RunConfig, TrainConfig
+from train.data import TrainShape, prepare_train_shape, select_names, split_names
+from train.loop import (
+    load_checkpoint_into,
+    new_state,
+    run_training,
+    save_checkpoint,
+    train_step,
+)
+from train.losses import LossConfig, pair_loss, supervised_loss
+
+
+@pytest.fixture(autouse=True)
+def _isolated(tmp_path, monkeypatch):
+    """A private operator cache and one torch thread (tiny tensors; the CPU is shared)."""
+    monkeypatch.setenv("SPIDERMATCH_CACHE_DIR", str(tmp_path / "cache"))
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def tiny_config(**run) -> TrainConfig:
+    return TrainConfig(
+        seed=3,
+        model=ModelConfig(in_channels=16, out_channels=16, width=16, n_blocks=2, n_eig=30),
+        loss=LossConfig(n_fmap=20),
+        optim=OptimConfig(lr=5e-3, decay_every=4, decay_gamma=0.9),
+        data=DataConfig(target_faces=None, use_cache=False),
+        run=RunConfig(**{"n_steps": 6, "val_every": 100, "checkpoint_every": 100,
+                         "progress": False, **run}),
+    )
+
+
+@pytest.fixture(scope="module")
+def shapes() -> list[TrainShape]:
+    from spidermatch.datasets import SyntheticShapes
+
+    dataset = SyntheticShapes(n_shapes=3, n_verts=250, seed=0, n_refs=100)
+    config = tiny_config()
+    return [prepare_train_shape(dataset.load(name), config.model, config.data)
+            for name in dataset.names]
+
+
+def _pair_value(state, shapes, config) -> float:
+    x, y = shapes[0], shapes[1]
+    with torch.no_grad():
+        loss, _ = pair_loss(state.network(x.input.features, x.input.ops),
+                            state.network(y.input.features, y.input.ops),
+                            x.input.ops, y.input.ops, config.loss)
+    return loss.item()
+
+
+def test_a_few_steps_reduce_the_loss(shapes):
+    config = tiny_config()
+    state = new_state(config)
+    values = [_pair_value(state, shapes[:2], config)]
+    for _ in range(2):
+        for _ in range(5):
+            train_step(state, shapes[:2], config)
+        values.append(_pair_value(state, shapes[:2], config))
+    assert state.step == 10
+    assert values[2] < values[1] < values[0]
+    assert values[2] < 0.97 * values[0]
+
+
+def test_supervised_term(shapes):
+    p = torch.softmax(torch.randn(5, 4), dim=1)
+    corr = torch.tensor([0, 1, 2]), torch.tensor([3, 3, 0])
+    expected = -(p[0, 3].log() + p[1, 3].log() + p[2, 0].log()) / 3
+    assert torch.allclose(supervised_loss(p, *corr), expected)
+    config = tiny_config()
+    config.loss.w_sup = 1.0
+    state = new_state(config)
+    value = train_step(state, shapes, config)
+    assert math.isfinite(value)
+    with pytest.raises(ValueError, match="ground-truth"):
+        x, y = shapes[:2]
+        pair_loss(x.input.features @ torch.ones(16, 16), y.input.features @ torch.ones(16, 16),
+                  x.input.ops, y.input.ops, config.loss, None)
+
+
+def _tensors_equal(a, b) -> bool:
+    if isinstance(a, torch.Tensor):
+        return isinstance(b, torch.Tensor) and torch.equal(a, b)
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_tensors_equal(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(_tensors_equal(u, v) for u, v in zip(a, b))
+    return a == b
+
+
+def test_checkpoint_round_trip_is_bit_exact(tmp_path, shapes):
+    config = tiny_config()
+    state = new_state(config)
+    for _ in range(3):
+        train_step(state, shapes, config)
+    save_checkpoint(tmp_path / "c.pt", state, config)
+    rng_after_save = torch.get_rng_state()
+    torch.manual_seed(123)  # disturb everything the checkpoint must restore
+    restored = new_state(config)
+    load_checkpoint_into(tmp_path / "c.pt", restored, config)
+    assert restored.step == 3
+    assert _tensors_equal(state.network.state_dict(), restored.network.state_dict())
+    assert _tensors_equal(state.optimiser.state_dict(), restored.optimiser.state_dict())
+    assert state.scheduler.state_dict() == restored.scheduler.state_dict()
+    assert torch.equal(state.generator.get_state(), restored.generator.get_state())
+    assert torch.equal(torch.get_rng_state(), rng_after_save)
+    assert train_step(state, shapes, config) == train_step(restored, shapes, config)
+
+
+def test_resume_reproduces_the_uninterrupted_run(tmp_path, shapes):
+    config = tiny_config(n_steps=6, val_every=3)
+    straight = run_training(config, tmp_path / "straight", shapes, None)
+    first = run_training(tiny_config(n_steps=3, val_every=3), tmp_path / "first", shapes, None)
+    assert first.losses == straight.losses[:3]
+    resumed_config = tiny_config(n_steps=6, val_every=3)
+    resumed_config.resume = str(tmp_path / "first" / "last.pt")
+    resumed = run_training(resumed_config, tmp_path / "second", shapes, None)
+    assert resumed.step == 6
+    assert resumed.losses == straight.losses[3:]  # bit-exact, not approximately
+    assert (tmp_path / "second" / "last.pt").is_file()
+
+
+def test_bad_checkpoints_are_reported(tmp_path, shapes):
+    config = tiny_config()
+    state = new_state(config)
+    with pytest.raises(CheckpointError, match="nothing.pt: no such checkpoint"):
+        load_checkpoint_into(tmp_path / "nothing.pt", state, config)
+    save_checkpoint(tmp_path / "good.pt", state, config)
+    data = (tmp_path / "good.pt").read_bytes()
+    (tmp_path / "truncated.pt").write_bytes(data[: len(data) // 2])
+    with pytest.raises(CheckpointError, match="truncated.pt: corrupt"):
+        load_checkpoint_into(tmp_path / "truncated.pt", state, config)
+    flipped = bytearray(data)
+    flipped[len(data) // 2] ^= 0xFF  # inside the tensor data: only the checksum notices
+    (tmp_path / "flipped.pt").write_bytes(bytes(flipped))
+    with pytest.raises(CheckpointError, match="flipped.pt: corrupt"):
+        load_checkpoint_into(tmp_path / "flipped.pt", state, config)
+    other = tiny_config()
+    other.model.width = 8
+    other.loss.temperature = 0.1
+    with pytest.raises(CheckpointError, match=r"incompatible config.*model\.width: 8.*loss\.temperature"):
+        load_checkpoint_into(tmp_path / "good.pt", new_state(other), other)
+    longer = tiny_config(n_steps=50, val_every=7)  # run length may change on resume
+    load_checkpoint_into(tmp_path / "good.pt", new_state(longer), longer)
+
+
+def test_config_validation():
+    with pytest.raises(ValueError, match="n_fmap = 40 exceeds"):
+        TrainConfig(model=ModelConfig(n_eig=30), loss=LossConfig(n_fmap=40))
+    with pytest.raises(ValueError, match="run.val_every"):
+        TrainConfig(run=RunConfig(val_every=0))
+    config = tiny_config()
+    assert TrainConfig.from_dict(config.to_dict()) == config
+
+
+def test_name_selection():
+    names = [f"tr_reg_{i:03d}" for i in range(80)]
+    assert select_names(names, "tr_reg_000..tr_reg_069", "data.train") == names[:70]
+    assert select_names(names, "70:", "data.val") == names[70:]
+    assert select_names(names, ["tr_reg_005", "tr_reg_001"], "x") == ["tr_reg_005", "tr_reg_001"]
+    assert split_names(names, DataConfig()) == (names[:70], names[70:])
+    with pytest.raises(ValueError, match="data.train.*no shape named 'tr_reg_099'"):
+        select_names(names, "tr_reg_000..tr_reg_099", "data.train")
+    with pytest.raises(ValueError, match="data.val: unknown shape 'bob'"):
+        select_names(names, ["bob"], "data.val")
+    with pytest.raises(ValueError, match="selects no shapes"):
+        select_names(names, "5:5", "data.val")
+    with pytest.raises(ValueError, match="start:stop"):
+        select_names(names, "a:b", "data.val")
+    with pytest.raises(ValueError, match="at least 2"):
+        split_names(names[:3], DataConfig(train=["tr_reg_000"]))
+
+
+def test_real_config_composes_and_runs(tmp_path):
+    from hydra import compose, initialize_config_module
+
+    import train.cli  # noqa: F401  (registers the schema)
+    from train.cli import to_train_config
+    from train.loop import train
+
+    overrides = ["data.synthetic_shapes=4", "data.synthetic_verts=250", "data.val_points=30",
+                 "model.width=8", "model.n_blocks=1", "model.n_eig=24", "model.in_channels=8",
+                 "model.out_channels=8", "loss.n_fmap=12", "run.n_steps=2", "run.val_every=1",
+                 "run.progress=false"]
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        cfg = compose(config_name="train", overrides=overrides)
+        faust = compose(config_name="train", overrides=["train/experiment=faust_r",
+                                                        "data.root=/nowhere"])
+    assert to_train_config(faust).data.train == "tr_reg_000..tr_reg_069"
+    result = train(to_train_config(cfg), tmp_path)
+    assert result.step == 2 and 0 <= result.best_val < 1
+    assert (tmp_path / "best.pt").is_file() and (tmp_path / "last.pt").is_file()
+    with pytest.raises(CheckpointError, match="missing.pt"):
+        config = to_train_config(cfg)
+        config.resume = str(tmp_path / "missing.pt")
+        train(config, tmp_path)
+
+
+def test_time_limit_stops_after_validating(tmp_path, shapes):
+    config = tiny_config(n_steps=50, time_limit_min=0.0)
+    result = run_training(config, tmp_path, shapes, None)
+    assert result.step == 1 and not result.interrupted
+    assert (tmp_path / "last.pt").is_file()

@@ -1,0 +1,52 @@
+"""``spidermatch-train``: the Hydra entry point of training (the only Hydra code of train/)."""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+import hydra
+from hydra.core.config_store import ConfigStore
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+
+from spidermatch.datasets import DatasetError
+from spidermatch.mesh import MeshError
+from train.config import TrainConfig
+from train.loop import train
+
+logger = logging.getLogger(__name__)
+
+ConfigStore.instance().store(name="train_schema", node=TrainConfig)
+
+
+def to_train_config(cfg: DictConfig) -> TrainConfig:
+    """The typed :class:`TrainConfig` of a composed Hydra config (``hydra`` key excluded)."""
+    values = OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
+    values.pop("hydra", None)
+    return TrainConfig.from_dict(values)
+
+
+@hydra.main(config_path="pkg://conf", config_name="train", version_base="1.3")
+def train_main(cfg: DictConfig) -> float:
+    """Train DiffusionNet features; writes ``last.pt`` and ``best.pt`` in the run folder.
+
+    Returns the best validation error (mean normalised geodesic error).
+    """
+    config = to_train_config(cfg)
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    try:
+        result = train(config, out_dir)
+    except (ValueError, FloatingPointError) as error:  # CheckpointError, DatasetError, MeshError
+        kind = type(error).__name__ if not isinstance(error, (DatasetError, MeshError)) else "data"
+        print(f"spidermatch-train: error ({kind}): {error}", file=sys.stderr)
+        raise SystemExit(2) from error
+    status = "interrupted" if result.interrupted else "finished"
+    print(f"{status} at step {result.step}: last validation error {result.last_val:.4f}, "
+          f"best {result.best_val:.4f}; checkpoints in {out_dir}")
+    return result.best_val
+
+
+if __name__ == "__main__":
+    train_main()

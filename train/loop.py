@@ -1,0 +1,317 @@
+"""The training loop: pair sampling, optimisation, validation, checkpoints and exact resume.
+
+A checkpoint is a ``torch.save`` dictionary (readable with ``weights_only=True``)::
+
+    format, version        framing, checked by features.learned.read_checkpoint
+    config                 TrainConfig.to_dict()
+    step                   optimisation steps completed
+    model                  DiffusionNet state_dict
+    optimizer, scheduler   their state_dicts
+    rng                    torch global RNG state and the pair sampler's state
+    metrics                best validation error, validation history, last loss
+
+Resuming restores all of it, so the next losses equal those of an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import shutil
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from tqdm.auto import tqdm
+
+from features.diffusion_net import DiffusionNet
+from features.learned import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, CheckpointError, read_checkpoint
+from train.config import TrainConfig, incompatibilities
+from train.data import (
+    TrainShape,
+    Validator,
+    open_shapes,
+    prepare_shapes,
+    prepare_train_shape,
+    prepare_val_shape,
+    split_names,
+)
+from train.losses import pair_loss
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class TrainingState:
+    """Everything that changes during training (and is saved in a checkpoint)."""
+
+    network: DiffusionNet
+    optimiser: torch.optim.Optimizer
+    scheduler: torch.optim.lr_scheduler.LRScheduler
+    generator: torch.Generator
+    step: int = 0
+    best_val: float = math.inf
+    history: list[dict[str, float]] = field(default_factory=list)
+    last_loss: float = math.nan
+
+
+@dataclass
+class TrainResult:
+    """Outcome of :func:`run_training`.
+
+    Attributes
+    ----------
+    step : int
+        Steps completed in total (including those before a resume).
+    losses : list of float
+        Loss of each step run by this call, in order.
+    best_val, last_val : float
+        Best and most recent validation error (nan if never validated).
+    interrupted : bool
+        The run stopped early on Ctrl-C (``last.pt`` holds its state).
+    """
+
+    step: int
+    losses: list[float]
+    best_val: float
+    last_val: float
+    interrupted: bool = False
+
+
+def new_state(config: TrainConfig) -> TrainingState:
+    """Seeded network, Adam, step schedule and pair sampler."""
+    torch.manual_seed(config.seed)
+    network = DiffusionNet.from_config(config.model)
+    optim = config.optim
+    optimiser = torch.optim.Adam(network.parameters(), lr=optim.lr, weight_decay=optim.weight_decay)
+    scheduler = torch.optim.lr_scheduler.StepLR(optimiser, optim.decay_every, optim.decay_gamma)
+    generator = torch.Generator().manual_seed(config.seed)
+    return TrainingState(network, optimiser, scheduler, generator)
+
+
+def checkpoint_dict(state: TrainingState, config: TrainConfig) -> dict[str, Any]:
+    """The checkpoint of ``state`` (see the module docstring)."""
+    return {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "config": config.to_dict(),
+        "step": state.step,
+        "model": state.network.state_dict(),
+        "optimizer": state.optimiser.state_dict(),
+        "scheduler": state.scheduler.state_dict(),
+        "rng": {"torch": torch.get_rng_state(), "pairs": state.generator.get_state()},
+        "metrics": {"best_val": state.best_val, "history": list(state.history),
+                    "last_loss": state.last_loss},
+    }
+
+
+def save_checkpoint(path: str | os.PathLike, state: TrainingState, config: TrainConfig) -> Path:
+    """Write the checkpoint atomically (temporary file, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(path.name + ".partial")
+    torch.save(checkpoint_dict(state, config), partial)
+    os.replace(partial, path)
+    return path
+
+
+def compatible_checkpoint(path: str | os.PathLike, config: TrainConfig) -> dict[str, Any]:
+    """Read a checkpoint and check that ``config`` may resume it (CheckpointError if not)."""
+    checkpoint = read_checkpoint(path)
+    differences = incompatibilities(config.to_dict(), checkpoint["config"])
+    if differences:
+        raise CheckpointError(f"{path}: checkpoint from an incompatible config: "
+                              + "; ".join(differences))
+    return checkpoint
+
+
+def load_checkpoint_into(path: str | os.PathLike, state: TrainingState, config: TrainConfig) -> None:
+    """Restore ``state`` from a checkpoint written with a compatible config.
+
+    Raises
+    ------
+    CheckpointError
+        Missing, corrupt or incompatible checkpoint (the message lists the differences).
+    """
+    checkpoint = compatible_checkpoint(path, config)
+    try:
+        state.network.load_state_dict(checkpoint["model"])
+        state.optimiser.load_state_dict(checkpoint["optimizer"])
+        state.scheduler.load_state_dict(checkpoint["scheduler"])
+        torch.set_rng_state(checkpoint["rng"]["torch"])
+        state.generator.set_state(checkpoint["rng"]["pairs"])
+        metrics = checkpoint["metrics"]
+        state.best_val = float(metrics["best_val"])
+        state.history = list(metrics["history"])
+        state.last_loss = float(metrics["last_loss"])
+    except (KeyError, RuntimeError, TypeError, ValueError) as error:
+        raise CheckpointError(f"{path}: checkpoint is incomplete or does not fit the model "
+                              f"({error})") from error
+    state.step = int(checkpoint["step"])
+
+
+def sample_pair(generator: torch.Generator, n: int) -> tuple[int, int]:
+    """Two distinct indices in ``range(n)``, uniformly, from ``generator``."""
+    first = int(torch.randint(n, (1,), generator=generator))
+    second = int(torch.randint(n - 1, (1,), generator=generator))
+    return first, second + (second >= first)
+
+
+def train_step(state: TrainingState, shapes: list[TrainShape], config: TrainConfig) -> float:
+    """One Adam step on a random pair; returns the loss before the step."""
+    state.network.train()
+    i, j = sample_pair(state.generator, len(shapes))
+    x, y = shapes[i], shapes[j]
+    feat_x = state.network(x.input.features, x.input.ops)
+    feat_y = state.network(y.input.features, y.input.ops)
+    corr = (x.corr, y.corr) if x.corr is not None and y.corr is not None else None
+    loss, _ = pair_loss(feat_x, feat_y, x.input.ops, y.input.ops, config.loss, corr)
+    if not torch.isfinite(loss):
+        raise FloatingPointError(f"step {state.step + 1}: loss is {float(loss)} on pair "
+                                 f"({x.name}, {y.name})")
+    state.optimiser.zero_grad(set_to_none=True)
+    loss.backward()
+    if config.optim.grad_clip > 0:
+        torch.nn.utils.clip_grad_norm_(state.network.parameters(), config.optim.grad_clip)
+    state.optimiser.step()
+    state.scheduler.step()
+    state.step += 1
+    state.last_loss = loss.item()
+    return state.last_loss
+
+
+def validate(state: TrainingState, validator: Validator | None, config: TrainConfig,
+             out_dir: Path) -> float:
+    """Validate, record, and write ``last.pt`` (and ``best.pt`` on improvement)."""
+    error = validator(state.network) if validator is not None else math.nan
+    improved = error < state.best_val
+    if improved:
+        state.best_val = error
+    state.history.append({"step": state.step, "val_error": error, "loss": state.last_loss})
+    save_checkpoint(out_dir / "last.pt", state, config)
+    if improved:
+        save_checkpoint(out_dir / "best.pt", state, config)
+    logger.info("step %d: validation error %.4f (best %.4f)", state.step, error, state.best_val)
+    return error
+
+
+@contextlib.contextmanager
+def stop_on_interrupt():
+    """Turn the first Ctrl-C into a request to stop after the current step.
+
+    Yields a one-element list whose item becomes True when a stop was requested;
+    a second Ctrl-C interrupts at once.
+    """
+    requested = [False]
+    if threading.current_thread() is not threading.main_thread():
+        yield requested
+        return
+
+    def handler(signum, frame):
+        if requested[0]:
+            raise KeyboardInterrupt
+        requested[0] = True
+        logger.warning("interrupt: stopping after this step (Ctrl-C again to abort)")
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield requested
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def run_training(config: TrainConfig, out_dir: str | os.PathLike, shapes: list[TrainShape],
+                 validator: Validator | None, started: float | None = None) -> TrainResult:
+    """Train on prepared shapes, validating and checkpointing into ``out_dir``.
+
+    Stops after ``config.run.n_steps`` steps, at the wall-clock limit
+    ``config.run.time_limit_min`` (validating and checkpointing there), or after
+    the current step on Ctrl-C (writing ``last.pt``).
+
+    Parameters
+    ----------
+    config : TrainConfig
+        ``config.resume`` names a checkpoint to continue from (or None).
+    out_dir : str or PathLike
+        Receives ``last.pt`` and ``best.pt``.
+    shapes : list of TrainShape
+        At least two training shapes.
+    validator : Validator, optional
+        None skips the metric (validation error is nan) but still checkpoints.
+    started : float, optional
+        ``time.monotonic()`` at which the time limit starts counting (default: now).
+    """
+    if len(shapes) < 2:
+        raise ValueError(f"training needs at least 2 shapes, got {len(shapes)}")
+    out_dir, run = Path(out_dir), config.run
+    state = new_state(config)
+    if config.resume is not None:
+        load_checkpoint_into(config.resume, state, config)
+        _carry_best(Path(config.resume), out_dir)
+        logger.info("resumed from %s at step %d", config.resume, state.step)
+    started = time.monotonic() if started is None else started
+    deadline = math.inf if run.time_limit_min is None else started + 60 * run.time_limit_min
+    losses, last_val = [], math.nan
+    bar = tqdm(total=run.n_steps, initial=min(state.step, run.n_steps), desc="train",
+               disable=not run.progress, dynamic_ncols=True)
+    with bar, stop_on_interrupt() as stop:
+        while state.step < run.n_steps and not stop[0]:
+            losses.append(train_step(state, shapes, config))
+            bar.update(1)
+            bar.set_postfix(loss=f"{losses[-1]:.4f}", val=f"{last_val:.4f}", refresh=False)
+            out_of_time = time.monotonic() > deadline
+            if state.step % run.val_every == 0 or state.step == run.n_steps or out_of_time:
+                last_val = validate(state, validator, config, out_dir)
+            elif state.step % run.checkpoint_every == 0:
+                save_checkpoint(out_dir / "last.pt", state, config)
+            if out_of_time:
+                logger.warning("time limit of %s min reached at step %d", run.time_limit_min,
+                               state.step)
+                break
+    if stop[0]:
+        save_checkpoint(out_dir / "last.pt", state, config)
+        logger.warning("stopped at step %d; continue with resume=%s", state.step,
+                       out_dir / "last.pt")
+    return TrainResult(state.step, losses, state.best_val, last_val, interrupted=stop[0])
+
+
+def _carry_best(resumed: Path, out_dir: Path) -> None:
+    """Copy the resumed run's ``best.pt`` into a new output folder, if there is one."""
+    best = resumed.parent / "best.pt"
+    if best.is_file() and best.resolve() != (out_dir / "best.pt").resolve():
+        out_dir.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(best, out_dir / "best.pt")
+
+
+def prepare_data(config: TrainConfig) -> tuple[list[TrainShape], Validator]:
+    """Open the dataset, split it, and precompute all training and validation inputs."""
+    dataset = open_shapes(config.data)
+    train_names, val_names = split_names(dataset.names, config.data)
+    logger.info("%d training shapes (%s..%s), %d validation shapes (%s..%s)", len(train_names),
+                train_names[0], train_names[-1], len(val_names), val_names[0], val_names[-1])
+    progress = config.run.progress
+    shapes = prepare_shapes(dataset, train_names, prepare_train_shape, config.model, config.data,
+                            "prepare training shapes", progress)
+    val_shapes = prepare_shapes(dataset, val_names, prepare_val_shape, config.model, config.data,
+                                "prepare validation shapes", progress)
+    return shapes, Validator(val_shapes, config.data.val_points)
+
+
+def train(config: TrainConfig, out_dir: str | os.PathLike) -> TrainResult:
+    """Prepare the data named by ``config.data`` and run :func:`run_training`.
+
+    The time limit ``config.run.time_limit_min`` includes the data preparation.
+    """
+    started = time.monotonic()
+    if config.run.threads is not None:
+        torch.set_num_threads(config.run.threads)
+    if config.resume is not None:
+        compatible_checkpoint(config.resume, config)  # fail before the (slow) data preparation
+    shapes, validator = prepare_data(config)
+    return run_training(config, out_dir, shapes, validator, started)
