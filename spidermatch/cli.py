@@ -83,11 +83,18 @@ def settings_from_config(cfg, resolution: int) -> MatchSettings:
     )
 
 
-def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, str]:
-    """Per-vertex features of both full-resolution (centred) meshes, and the extractor's name."""
+def make_extractor(cfg):
+    """Instantiate ``cfg.features``; a learned extractor without a checkpoint is a clear error."""
     from hydra.utils import instantiate
 
-    extractor = instantiate(cfg.features)
+    if "checkpoint" in cfg.features and cfg.features.checkpoint is None:
+        raise ValueError("features=learned needs a trained network: give checkpoint=PATH (see spidermatch-train)")
+    return instantiate(cfg.features)
+
+
+def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, str]:
+    """Per-vertex features of both full-resolution (centred) meshes, and the extractor's name."""
+    extractor = make_extractor(cfg)
     name = getattr(extractor, "name", type(extractor).__name__)
     if name == "wks":
         logger.info("features: WKS (no trained checkpoint given; use features=learned features.checkpoint=PATH)")
@@ -216,9 +223,7 @@ class FeatureMemo:
     """Per-shape feature cache for a dataset run: each shape's features are computed once."""
 
     def __init__(self, cfg) -> None:
-        from hydra.utils import instantiate
-
-        self.extractor = instantiate(cfg.features)
+        self.extractor = make_extractor(cfg)
         self.name = getattr(self.extractor, "name", type(self.extractor).__name__)
         self._cache: dict[str, np.ndarray] = {}
 

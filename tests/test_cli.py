@@ -70,3 +70,35 @@ def test_time_limit_without_solution_exits_non_zero(tmp_path):
         assert code == 0 and result["proven_optimal"] is False
     else:
         assert code == 4 and result["status"] == "no_solution" and "stopped" in result["error"]
+
+
+@pytest.fixture(scope="module")
+def tiny_checkpoint(tmp_path_factory):
+    import train.cli  # noqa: F401  (registers the training schema)
+    from train.cli import to_train_config
+    from train.loop import train
+
+    overrides = ["data.synthetic_shapes=3", "data.synthetic_verts=300", "data.val_points=30",
+                 "model.width=8", "model.n_blocks=1", "model.out_channels=16", "loss.n_fmap=12",
+                 "run.n_steps=2", "run.val_every=2", "run.progress=false"]
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        cfg = compose(config_name="train", overrides=overrides)
+    folder = tmp_path_factory.mktemp("train")
+    train(to_train_config(cfg), folder)
+    return folder / "best.pt"
+
+
+def test_learned_features_in_match(tmp_path, tiny_checkpoint):
+    cfg = config(SMALL + ["features=learned", f"checkpoint={tiny_checkpoint}", "output.png=false"])
+    assert run_match(cfg, tmp_path) == 0
+    result = json.loads((tmp_path / "result.json").read_text())
+    assert result["features"] == "learned" and result["check"]["ok"]
+
+
+def test_learned_features_need_a_usable_checkpoint(tmp_path):
+    cfg = config(SMALL + ["features=learned"])
+    assert run_match(cfg, tmp_path / "a") == 2
+    assert "needs a trained network" in json.loads((tmp_path / "a" / "result.json").read_text())["error"]
+    cfg = config(SMALL + ["features=learned", f"features.checkpoint={tmp_path / 'nope.pt'}"])
+    assert run_match(cfg, tmp_path / "b") == 2
+    assert "nope.pt: no such checkpoint" in json.loads((tmp_path / "b" / "result.json").read_text())["error"]

@@ -70,3 +70,19 @@ def test_killed_evaluation_resumes_only_missing_pairs(tmp_path):
     assert (finished.stdout + finished.stderr).count("skipping finished pair") == len(done_before)
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["pairs_finished"] == 6
+
+
+def test_sweep_with_joblib_launcher_and_collect(tmp_path):
+    command = [
+        sys.executable, "-m", "spidermatch.cli_eval", "-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
+        *SMALL, "synthetic.n_shapes=2", "n_pairs=1", "curve.seed=0,1", "name=sweep",
+    ]
+    finished = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert finished.returncode == 0, finished.stderr[-2000:]
+    sweep_dir = tmp_path / "multirun" / "eval" / "sweep"
+    summaries = sorted(sweep_dir.glob("*/summary.json"))
+    assert [s.parent.name for s in summaries] == ["curve.seed=0", "curve.seed=1"]
+    collect_main([str(sweep_dir)])
+    table = (sweep_dir / "collected.csv").read_text().splitlines()
+    assert len(table) == 3 and table[1].startswith("curve.seed=0")
+    assert (sweep_dir / "curves.png").is_file()
