@@ -32,7 +32,9 @@ def make_extractor(kind: str, checkpoint: str | None):
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--data", default="synthetic")
     parser.add_argument("--pairs", nargs="+", required=True, help="SOURCE:TARGET shape names")
     parser.add_argument("--features", default="wks", help="wks or learned")
@@ -50,8 +52,15 @@ def main(argv: list[str] | None = None) -> None:
         seconds = (time.perf_counter() - start) / 2
         nearest = cKDTree(feat_y).query(feat_x)[1]
         error = dense_map_errors(nearest, x.corr, y.corr, y.mesh).mean
-        rows.append({"pair": text, "vertices": [x.mesh.n_verts, y.mesh.n_verts], "features": args.features,
-                     "mean_geodesic_error": round(error, 4), "feature_time_per_shape_s": round(seconds, 3)})
+        rows.append(
+            {
+                "pair": text,
+                "vertices": [x.mesh.n_verts, y.mesh.n_verts],
+                "features": args.features,
+                "mean_geodesic_error": round(error, 4),
+                "feature_time_per_shape_s": round(seconds, 3),
+            }
+        )
         print(json.dumps(rows[-1]), flush=True)
     mean = sum(r["mean_geodesic_error"] for r in rows) / len(rows)
     print(f"mean over {len(rows)} pairs: {mean:.4f}")

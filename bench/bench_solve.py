@@ -21,14 +21,26 @@ import time
 from pathlib import Path
 
 COLUMNS = (
-    "pair", "faces", "features", "strategy", "status", "variables", "rows", "build_s", "solve_s",
-    "objective", "bound", "gap", "check", "geo_err", "peak_mib",
+    "pair",
+    "faces",
+    "features",
+    "strategy",
+    "status",
+    "variables",
+    "rows",
+    "build_s",
+    "solve_s",
+    "objective",
+    "bound",
+    "gap",
+    "check",
+    "geo_err",
+    "peak_mib",
 )
 
 
 def run_instance(args: tuple) -> dict:
     data, pair, faces, strategy, features, time_limit, checkpoint = args
-    import numpy as np
 
     from spidermatch.datasets import open_dataset
     from spidermatch.evaluate import sparse_map_errors
@@ -49,16 +61,26 @@ def run_instance(args: tuple) -> dict:
     settings = MatchSettings(resolution=faces, strategy=strategy, solver=SolverOptions(time_limit=time_limit))
     result = match(x.mesh, y.mesh, feat_x, feat_y, settings)
     row = {
-        "pair": f"{pair[0]}:{pair[1]}", "faces": faces, "features": features, "strategy": strategy,
-        "status": result.solve.status, "variables": result.solve.n_vars, "rows": result.solve.n_rows,
+        "pair": f"{pair[0]}:{pair[1]}",
+        "faces": faces,
+        "features": features,
+        "strategy": strategy,
+        "status": result.solve.status,
+        "variables": result.solve.n_vars,
+        "rows": result.solve.n_rows,
         "build_s": round(sum(result.timings.get(k, 0.0) for k in ("decimate", "curve", "costs", "build")), 2),
-        "solve_s": round(result.solve.wall_time, 2), "objective": result.solve.objective,
-        "bound": result.solve.bound, "gap": result.solve.gap,
-        "check": None if result.check is None else bool(result.check.ok), "geo_err": None,
+        "solve_s": round(result.solve.wall_time, 2),
+        "objective": result.solve.objective,
+        "bound": result.solve.bound,
+        "gap": result.solve.gap,
+        "check": None if result.check is None else bool(result.check.ok),
+        "geo_err": None,
     }
     if result.low_map is not None and x.corr is not None and y.corr is not None:
         pairs = result.full_pairs
-        row["geo_err"] = round(sparse_map_errors(pairs[:, 0], pairs[:, 1], x.mesh, x.corr, y.corr, y.mesh).mean, 4)
+        row["geo_err"] = round(
+            sparse_map_errors(pairs[:, 0], pairs[:, 1], x.mesh, x.corr, y.corr, y.mesh).mean, 4
+        )
     row["peak_mib"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     return row
 
@@ -72,7 +94,9 @@ def format_row(row: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--data", default="synthetic", help="FAUST_r-style folder, or 'synthetic'")
     parser.add_argument("--pairs", nargs="+", required=True, help="SOURCE:TARGET shape names")
     parser.add_argument("--resolutions", nargs="+", type=int, default=[100, 250, 500])

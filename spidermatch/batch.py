@@ -22,8 +22,18 @@ from spidermatch.datasets import DatasetError
 logger = logging.getLogger(__name__)
 
 SUMMARY_COLUMNS = (
-    "source", "target", "resolution", "features", "status", "gap", "objective", "bound",
-    "solve_s", "total_s", "geodesic_error", "reason",
+    "source",
+    "target",
+    "resolution",
+    "features",
+    "status",
+    "gap",
+    "objective",
+    "bound",
+    "solve_s",
+    "total_s",
+    "geodesic_error",
+    "reason",
 )
 
 
@@ -62,11 +72,18 @@ def summary_row(source: str, target: str, result: dict) -> dict:
     error = result.get("geodesic_error") or {}
     timings = result.get("timings_s") or {}
     return {
-        "source": source, "target": target, "resolution": result.get("resolution"),
-        "features": result.get("features"), "status": result.get("status"), "gap": result.get("gap"),
-        "objective": result.get("objective"), "bound": result.get("bound"),
-        "solve_s": timings.get("solve"), "total_s": result.get("total_time_s"),
-        "geodesic_error": error.get("mean"), "reason": result.get("error", ""),
+        "source": source,
+        "target": target,
+        "resolution": result.get("resolution"),
+        "features": result.get("features"),
+        "status": result.get("status"),
+        "gap": result.get("gap"),
+        "objective": result.get("objective"),
+        "bound": result.get("bound"),
+        "solve_s": timings.get("solve"),
+        "total_s": result.get("total_time_s"),
+        "geodesic_error": error.get("mean"),
+        "reason": result.get("error", ""),
     }
 
 
@@ -84,14 +101,17 @@ def summarise(rows: list[dict], n_planned: int) -> dict:
         statuses[row["status"]] = statuses.get(row["status"], 0) + 1
     succeeded = [r for r in rows if r["status"] in ("optimal", "feasible")]
     return {
-        "pairs_planned": n_planned, "pairs_finished": len(rows), "statuses": statuses,
+        "pairs_planned": n_planned,
+        "pairs_finished": len(rows),
+        "statuses": statuses,
         "geodesic_error": _stats([r["geodesic_error"] for r in succeeded]),
         "solve_s": _stats([r["solve_s"] for r in succeeded]),
         "total_s": _stats([r["total_s"] for r in rows]),
         "gap": _stats([r["gap"] for r in succeeded]),
         "failures": [
             {"source": r["source"], "target": r["target"], "status": r["status"], "reason": r["reason"]}
-            for r in rows if r["status"] not in ("optimal", "feasible")
+            for r in rows
+            if r["status"] not in ("optimal", "feasible")
         ],
     }
 

@@ -55,13 +55,17 @@ def load_inputs(cfg) -> MatchInputs:
         if (source_corr is None) != (target_corr is None):
             raise DatasetError("give both source_corr= and target_corr= to evaluate against ground truth")
         resolution = cfg.resolution or 1000
-        return MatchInputs(source, target, source_corr, target_corr, resolution, f"{cfg.source} -> {cfg.target}")
+        return MatchInputs(
+            source, target, source_corr, target_corr, resolution, f"{cfg.source} -> {cfg.target}"
+        )
     data = cfg.data
     shapes = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.source_seed)
     other = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.target_seed)
     x, y = shapes.load(shapes.names[0]), other.load(other.names[0])
     resolution = cfg.resolution or data.resolution
-    return MatchInputs(x.mesh, y.mesh, x.corr, y.corr, resolution, f"built-in synthetic pair {x.name} -> {y.name}")
+    return MatchInputs(
+        x.mesh, y.mesh, x.corr, y.corr, resolution, f"built-in synthetic pair {x.name} -> {y.name}"
+    )
 
 
 def settings_from_config(cfg, resolution: int) -> MatchSettings:
@@ -76,8 +80,11 @@ def settings_from_config(cfg, resolution: int) -> MatchSettings:
         loss=RobustLoss(float(cfg.costs.alpha), float(cfg.costs.scale), float(cfg.costs.bowl_exponent)),
         constraints=tuple(cfg.costs.constraints),
         solver=SolverOptions(
-            time_limit=float(solver.time_limit), mip_rel_gap=float(solver.mip_rel_gap),
-            threads=int(solver.threads), presolve=str(solver.presolve), log=bool(solver.log),
+            time_limit=float(solver.time_limit),
+            mip_rel_gap=float(solver.mip_rel_gap),
+            threads=int(solver.threads),
+            presolve=str(solver.presolve),
+            log=bool(solver.log),
         ),
         strategy=str(solver.strategy),
     )
@@ -88,7 +95,9 @@ def make_extractor(cfg):
     from hydra.utils import instantiate
 
     if "checkpoint" in cfg.features and cfg.features.checkpoint is None:
-        raise ValueError("features=learned needs a trained network: give checkpoint=PATH (see spidermatch-train)")
+        raise ValueError(
+            "features=learned needs a trained network: give checkpoint=PATH (see spidermatch-train)"
+        )
     return instantiate(cfg.features)
 
 
@@ -97,7 +106,9 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
     extractor = make_extractor(cfg)
     name = getattr(extractor, "name", type(extractor).__name__)
     if name == "wks":
-        logger.info("features: WKS (no trained checkpoint given; use features=learned features.checkpoint=PATH)")
+        logger.info(
+            "features: WKS (no trained checkpoint given; use features=learned features.checkpoint=PATH)"
+        )
     source, target = inputs.source.centred(), inputs.target.centred()
     if hasattr(extractor, "pair_features"):
         feat_x, feat_y = extractor.pair_features(source, target)
@@ -122,15 +133,20 @@ def write_matches(path: Path, pairs: np.ndarray) -> None:
 def result_summary(result: MatchResult, inputs: MatchInputs, feature_name: str) -> dict:
     """The solver figures, problem size and timings of a match, JSON-ready."""
     summary = result.solve.summary()
-    summary.update({
-        "resolution": inputs.resolution, "features": feature_name,
-        "source_low_res": {"vertices": result.source.mesh.n_verts, "faces": result.source.mesh.n_faces},
-        "target_low_res": {"vertices": result.target.mesh.n_verts, "faces": result.target.mesh.n_faces},
-        "curve_length": result.curve.length,
-        "curve_self_intersections": int(result.curve.intersections.size),
-        "check": {"ok": bool(result.check.ok), "problems": list(result.check.problems)} if result.check else None,
-        "timings_s": {name: round(seconds, 3) for name, seconds in result.timings.items()},
-    })
+    summary.update(
+        {
+            "resolution": inputs.resolution,
+            "features": feature_name,
+            "source_low_res": {"vertices": result.source.mesh.n_verts, "faces": result.source.mesh.n_faces},
+            "target_low_res": {"vertices": result.target.mesh.n_verts, "faces": result.target.mesh.n_faces},
+            "curve_length": result.curve.length,
+            "curve_self_intersections": int(result.curve.intersections.size),
+            "check": {"ok": bool(result.check.ok), "problems": list(result.check.problems)}
+            if result.check
+            else None,
+            "timings_s": {name: round(seconds, 3) for name, seconds in result.timings.items()},
+        }
+    )
     return summary
 
 
@@ -211,12 +227,18 @@ def _write_matching(cfg, output_dir: Path, result: MatchResult, inputs: MatchInp
 
         title = f"{inputs.description} | {report['status']}, gap {report.get('gap') or 0:.1e}"
         path = save_correspondence_png(
-            inputs.source.centred(), inputs.target.centred(), pairs[:, 0], pairs[:, 1],
-            output_dir / "correspondence.png", title,
+            inputs.source.centred(),
+            inputs.target.centred(),
+            pairs[:, 0],
+            pairs[:, 1],
+            output_dir / "correspondence.png",
+            title,
         )
         logger.info("wrote %s", path)
     if not result.solve.proven_optimal:
-        logger.warning("the solver stopped early: this matching is NOT proven optimal (gap %.2e)", result.solve.gap)
+        logger.warning(
+            "the solver stopped early: this matching is NOT proven optimal (gap %.2e)", result.solve.gap
+        )
 
 
 class FeatureMemo:
@@ -257,15 +279,24 @@ def run_eval(cfg, run_dir: Path) -> int:
     except (DatasetError, MeshError, ValueError) as error:
         logger.error("%s", error)
         return EXIT_BAD_INPUT
-    settings = {"dataset": str(cfg.dataset), "resolution": cfg.resolution, "features": memo.name,
-                "strategy": cfg.solver.strategy, "pairs": len(pairs)}
+    settings = {
+        "dataset": str(cfg.dataset),
+        "resolution": cfg.resolution,
+        "features": memo.name,
+        "strategy": cfg.solver.strategy,
+        "pairs": len(pairs),
+    }
     rows = []
     for source, target in tqdm(pairs, desc="pairs", unit="pair"):
         folder = pair_dir(run_dir, source, target)
         result = finished_result(folder)
         if result is None:
-            run_pair(cfg, folder, lambda s=source, t=target: _dataset_inputs(dataset, s, t, cfg.resolution),
-                     lambda inputs, s=source, t=target: memo.pair(inputs, (s, t)))
+            run_pair(
+                cfg,
+                folder,
+                lambda s=source, t=target: _dataset_inputs(dataset, s, t, cfg.resolution),
+                lambda inputs, s=source, t=target: memo.pair(inputs, (s, t)),
+            )
             result = finished_result(folder) or {"status": "error", "error": "no result.json written"}
         else:
             logger.info("skipping finished pair %s -> %s (%s)", source, target, result["status"])

@@ -14,8 +14,18 @@ from pathlib import Path
 
 from spidermatch.batch import collect_errors
 
-COLUMNS = ("run", "features", "resolution", "strategy", "pairs", "finished", "failures",
-           "mean_error", "median_error", "median_solve_s")
+COLUMNS = (
+    "run",
+    "features",
+    "resolution",
+    "strategy",
+    "pairs",
+    "finished",
+    "failures",
+    "mean_error",
+    "median_error",
+    "median_solve_s",
+)
 
 
 def collect(root: Path) -> list[dict]:
@@ -24,20 +34,28 @@ def collect(root: Path) -> list[dict]:
     for path in sorted(root.rglob("summary.json")):
         summary = json.loads(path.read_text())
         settings = summary.get("settings", {})
-        rows.append({
-            "run": str(path.parent.relative_to(root)) or ".",
-            "features": settings.get("features"), "resolution": settings.get("resolution"),
-            "strategy": settings.get("strategy"), "pairs": summary.get("pairs_planned"),
-            "finished": summary.get("pairs_finished"), "failures": len(summary.get("failures", [])),
-            "mean_error": summary["geodesic_error"]["mean"], "median_error": summary["geodesic_error"]["median"],
-            "median_solve_s": summary["solve_s"]["median"],
-        })
+        rows.append(
+            {
+                "run": str(path.parent.relative_to(root)) or ".",
+                "features": settings.get("features"),
+                "resolution": settings.get("resolution"),
+                "strategy": settings.get("strategy"),
+                "pairs": summary.get("pairs_planned"),
+                "finished": summary.get("pairs_finished"),
+                "failures": len(summary.get("failures", [])),
+                "mean_error": summary["geodesic_error"]["mean"],
+                "median_error": summary["geodesic_error"]["median"],
+                "median_solve_s": summary["solve_s"]["median"],
+            }
+        )
     return rows
 
 
 def main(argv: list[str] | None = None) -> None:
     """Console entry point."""
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("root", type=Path, help="folder holding evaluation runs (searched recursively)")
     parser.add_argument("--no-plot", action="store_true", help="skip curves.png")
     args = parser.parse_args(argv)

@@ -57,8 +57,12 @@ def _draw(ax, mesh: Mesh, colours: np.ndarray, view: tuple[float, float]) -> Non
 
 
 def save_correspondence_png(
-    source: Mesh, target: Mesh, src_vertices: np.ndarray, tgt_vertices: np.ndarray,
-    path: str | os.PathLike, title: str = "",
+    source: Mesh,
+    target: Mesh,
+    src_vertices: np.ndarray,
+    tgt_vertices: np.ndarray,
+    path: str | os.PathLike,
+    title: str = "",
 ) -> Path:
     """Render source and target side by side, the target coloured through the map.
 
@@ -79,7 +83,9 @@ def save_correspondence_png(
     colours_x = position_colours(source.verts)
     colours_y = transferred_colours(colours_x, np.asarray(src_vertices), np.asarray(tgt_vertices), target)
     figure = plt.figure(figsize=(4 * len(VIEWS), 8))
-    for row, (mesh, colours, label) in enumerate(((source, colours_x, "source"), (target, colours_y, "target"))):
+    for row, (mesh, colours, label) in enumerate(
+        ((source, colours_x, "source"), (target, colours_y, "target"))
+    ):
         for column, view in enumerate(VIEWS):
             ax = figure.add_subplot(2, len(VIEWS), row * len(VIEWS) + column + 1, projection="3d")
             _draw(ax, mesh, colours, view)
@@ -146,8 +152,12 @@ def save_curve_png(mesh: Mesh, curve_vertices: np.ndarray, path: str | os.PathLi
         ax.plot(points[:, 0], points[:, 1], points[:, 2], color="tab:red", linewidth=1.0)
         repeated = mesh.verts[counts > 1]
         ax.scatter(repeated[:, 0], repeated[:, 1], repeated[:, 2], color="black", s=6)
-    figure.suptitle(title or f"SpiderCurve: {len(curve_vertices)} positions, {int((counts > 1).sum())} "
-                    "self-intersections (dots)", fontsize=10)
+    figure.suptitle(
+        title
+        or f"SpiderCurve: {len(curve_vertices)} positions, {int((counts > 1).sum())} "
+        "self-intersections (dots)",
+        fontsize=10,
+    )
     figure.tight_layout()
     path = Path(path)
     figure.savefig(path, dpi=90)

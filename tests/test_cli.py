@@ -34,11 +34,16 @@ def test_every_config_group_composes_and_runs(tmp_path, group):
 def test_user_files_with_ground_truth(tmp_path):
     shapes = SyntheticShapes(n_shapes=2, n_verts=700)
     root = write_dataset(shapes, tmp_path / "data")
-    cfg = config([
-        f"source={root}/off/creature_000.off", f"target={root}/off/creature_001.off",
-        f"source_corr={root}/corres/creature_000.vts", f"target_corr={root}/corres/creature_001.vts",
-        "resolution=60", "output.png=false",
-    ])
+    cfg = config(
+        [
+            f"source={root}/off/creature_000.off",
+            f"target={root}/off/creature_001.off",
+            f"source_corr={root}/corres/creature_000.vts",
+            f"target_corr={root}/corres/creature_001.vts",
+            "resolution=60",
+            "output.png=false",
+        ]
+    )
     out = tmp_path / "run"
     assert run_match(cfg, out) == 0
     result = json.loads((out / "result.json").read_text())
@@ -52,7 +57,9 @@ def test_user_files_with_ground_truth(tmp_path):
 def test_bad_input_is_reported_with_exit_code_and_json(tmp_path):
     broken = tmp_path / "broken.off"
     broken.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n")
-    good = write_dataset(SyntheticShapes(n_shapes=1, n_verts=500), tmp_path / "d") / "off" / "creature_000.off"
+    good = (
+        write_dataset(SyntheticShapes(n_shapes=1, n_verts=500), tmp_path / "d") / "off" / "creature_000.off"
+    )
     cfg = config([f"source={broken}", f"target={good}"])
     assert run_match(cfg, tmp_path / "run") == 2
     result = json.loads((tmp_path / "run" / "result.json").read_text())
@@ -78,9 +85,18 @@ def tiny_checkpoint(tmp_path_factory):
     from train.cli import to_train_config
     from train.loop import train
 
-    overrides = ["data.synthetic_shapes=3", "data.synthetic_verts=300", "data.val_points=30",
-                 "model.width=8", "model.n_blocks=1", "model.out_channels=16", "loss.n_fmap=12",
-                 "run.n_steps=2", "run.val_every=2", "run.progress=false"]
+    overrides = [
+        "data.synthetic_shapes=3",
+        "data.synthetic_verts=300",
+        "data.val_points=30",
+        "model.width=8",
+        "model.n_blocks=1",
+        "model.out_channels=16",
+        "loss.n_fmap=12",
+        "run.n_steps=2",
+        "run.val_every=2",
+        "run.progress=false",
+    ]
     with initialize_config_module(config_module="conf", version_base="1.3"):
         cfg = compose(config_name="train", overrides=overrides)
     folder = tmp_path_factory.mktemp("train")

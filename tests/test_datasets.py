@@ -53,7 +53,9 @@ def test_identity_map_has_zero_error_and_curve_is_cumulative(rng):
     assert evaluation.mean > 0.1
     thresholds, curve = evaluation.curve()
     assert curve[0] >= 0 and curve[-1] <= 1 and np.all(np.diff(curve) >= 0)
-    np.testing.assert_allclose(cumulative_curve(np.array([0.0, 0.1, 0.3]), np.array([0.0, 0.1, 0.25])), [1 / 3, 2 / 3, 2 / 3])
+    np.testing.assert_allclose(
+        cumulative_curve(np.array([0.0, 0.1, 0.3]), np.array([0.0, 0.1, 0.25])), [1 / 3, 2 / 3, 2 / 3]
+    )
 
 
 def test_sparse_map_uses_nearest_reference_point():

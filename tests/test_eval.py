@@ -5,7 +5,6 @@ import subprocess
 import sys
 import time
 
-import pytest
 from hydra import compose, initialize_config_module
 
 from spidermatch.batch import select_pairs
@@ -74,8 +73,17 @@ def test_killed_evaluation_resumes_only_missing_pairs(tmp_path):
 
 def test_sweep_with_joblib_launcher_and_collect(tmp_path):
     command = [
-        sys.executable, "-m", "spidermatch.cli_eval", "-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
-        *SMALL, "synthetic.n_shapes=2", "n_pairs=1", "curve.seed=0,1", "name=sweep",
+        sys.executable,
+        "-m",
+        "spidermatch.cli_eval",
+        "-m",
+        "hydra/launcher=joblib",
+        "hydra.launcher.n_jobs=2",
+        *SMALL,
+        "synthetic.n_shapes=2",
+        "n_pairs=1",
+        "curve.seed=0,1",
+        "name=sweep",
     ]
     finished = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert finished.returncode == 0, finished.stderr[-2000:]

@@ -43,8 +43,13 @@ def solve_plain(
             break
         if time.perf_counter() - start >= options.time_limit:
             return replace(
-                result, status="no_solution", x=None, objective=math.inf, gap=math.nan,
-                wall_time=time.perf_counter() - start, cut_rounds=rounds,
+                result,
+                status="no_solution",
+                x=None,
+                objective=math.inf,
+                gap=math.nan,
+                wall_time=time.perf_counter() - start,
+                cut_rounds=rounds,
                 message="time limit reached while separating detached cycles",
             )
         rows, lower, upper = connectivity_cuts(graph, components)
