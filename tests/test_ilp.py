@@ -149,3 +149,27 @@ def test_checker_detects_broken_solutions():
     assert not check_solution(curve.vertices, edges, 3, bogus).ok
     path = extract_path(graph, solved.x)
     assert len(path.entry) == 4 and len(path.edges) == len(tuples)
+
+
+def test_connectivity_cuts_separate_detached_cycles_and_keep_every_path():
+    from spidermatch.solve.connectivity import connectivity_cuts, detached_components
+
+    square = np.array([[0, 1], [1, 2], [2, 3], [0, 3], [0, 2]])
+    curve, graph, costs = instance([0, 1, 0, 2], square, 4, 4)
+    solved = solve_plain(build_model(graph, curve, costs), graph, curve, SolverOptions(mip_rel_gap=0.0))
+    x = solved.x.copy()
+    assert detached_components(graph, x) == []
+    visited = {(int(layer), int(y)) for layer, y in extract_path(graph, x).layer_vertex_pairs()}
+    layer, a, b = next(
+        (layer, a, b)
+        for layer in range(4)
+        for a, b in square.tolist()
+        if (layer, a) not in visited and (layer, b) not in visited
+    )
+    x[edge_id(graph, layer, a, b, INTRA)] = x[edge_id(graph, layer, b, a, INTRA)] = 1  # a detached 2-cycle
+    components = detached_components(graph, x)
+    assert len(components) == 1
+    assert sorted(components[0].tolist()) == sorted([layer * 4 + a, layer * 4 + b])
+    rows, lower, _ = connectivity_cuts(graph, components)
+    assert (rows @ x < lower).any()  # the detached cycle is cut off
+    assert (rows @ solved.x >= lower).all()  # the single closed path is not
