@@ -98,7 +98,15 @@ def make_extractor(cfg):
         raise ValueError(
             "features=learned needs a trained network: give checkpoint=PATH (see spidermatch-train)"
         )
-    return instantiate(cfg.features)
+    from hydra.errors import InstantiationException
+
+    try:
+        return instantiate(cfg.features)
+    except InstantiationException as error:
+        # Hydra wraps the extractor's own error; a bad checkpoint is the user's input problem.
+        if isinstance(error.__cause__, (ValueError, OSError)):
+            raise error.__cause__ from None
+        raise
 
 
 def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, str]:

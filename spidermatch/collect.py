@@ -16,6 +16,7 @@ from spidermatch.batch import collect_errors
 
 COLUMNS = (
     "run",
+    "folder",
     "features",
     "resolution",
     "strategy",
@@ -28,15 +29,47 @@ COLUMNS = (
 )
 
 
+def natural_key(relative: Path) -> list:
+    """Sort key that puts sweep job folders 2 before 10."""
+    return [int(part) if part.isdigit() else part for part in relative.parts]
+
+
+def run_overrides(run_dir: Path) -> list[str]:
+    """The command-line overrides Hydra recorded for one run (empty if there are none)."""
+    recorded = run_dir / ".hydra" / "overrides.yaml"
+    if not recorded.is_file():
+        return []
+    from omegaconf import OmegaConf
+
+    return [str(item) for item in OmegaConf.load(recorded)]
+
+
+def run_labels(run_dirs: list[Path], root: Path) -> list[str]:
+    """Name each run by the overrides that differ between the runs (the swept values).
+
+    Falls back to the run's folder relative to ``root`` when nothing distinguishes it.
+    """
+    overrides = [run_overrides(run_dir) for run_dir in run_dirs]
+    shared = set.intersection(*(set(items) for items in overrides)) if len(overrides) > 1 else set()
+    labels = []
+    for run_dir, items in zip(run_dirs, overrides):
+        varying = [item for item in items if item not in shared]
+        labels.append(",".join(varying) if varying else (str(run_dir.relative_to(root)) or "."))
+    return labels
+
+
 def collect(root: Path) -> list[dict]:
-    """One row per ``summary.json`` found below ``root``."""
+    """One row per ``summary.json`` found below ``root``, in the order of the runs' folders."""
+    paths = sorted(root.rglob("summary.json"), key=lambda p: natural_key(p.parent.relative_to(root)))
+    labels = run_labels([path.parent for path in paths], root)
     rows = []
-    for path in sorted(root.rglob("summary.json")):
+    for path, label in zip(paths, labels):
         summary = json.loads(path.read_text())
         settings = summary.get("settings", {})
         rows.append(
             {
-                "run": str(path.parent.relative_to(root)) or ".",
+                "run": label,
+                "folder": str(path.parent.relative_to(root)) or ".",
                 "features": settings.get("features"),
                 "resolution": settings.get("resolution"),
                 "strategy": settings.get("strategy"),
@@ -73,7 +106,7 @@ def main(argv: list[str] | None = None) -> None:
     if not args.no_plot:
         from spidermatch.plot import save_error_curves
 
-        runs = {f"{r['run']}": collect_errors(args.root / r["run"]) for r in rows}
+        runs = {r["run"]: collect_errors(args.root / r["folder"]) for r in rows}
         runs = {label: errors for label, errors in runs.items() if errors.size}
         if runs:
             print(f"wrote {save_error_curves(runs, args.root / 'curves.png')}")

@@ -23,7 +23,9 @@ from spidermatch.mesh import Mesh, triangle_areas
 
 logger = logging.getLogger(__name__)
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
+# Eigenpairs computed beyond the requested number, then dropped (see laplacian_eigenpairs).
+EXTRA_MODES = 8
 CACHE_ENV = "SPIDERMATCH_CACHE_DIR"
 
 
@@ -119,8 +121,12 @@ def laplacian_eigenpairs(laplacian: sp.csr_matrix, mass: np.ndarray, k: int) -> 
 
         evals, evecs = eigh(laplacian.toarray(), np.diag(mass), subset_by_index=[0, k - 1])
     else:
-        evals, evecs = spla.eigsh(laplacian, k=k, M=mass_matrix, sigma=-1e-8, which="LM")
-    order = np.argsort(evals)
+        # A fixed start vector makes the result reproducible; a few modes beyond k keep a
+        # (near-)degenerate eigenvalue cluster at the cut from being returned incomplete.
+        n_modes = min(k + EXTRA_MODES, n - 2)
+        start = np.random.default_rng(0).standard_normal(n)
+        evals, evecs = spla.eigsh(laplacian, k=n_modes, M=mass_matrix, sigma=-1e-8, which="LM", v0=start)
+    order = np.argsort(evals)[:k]
     evals, evecs = np.clip(evals[order], 0.0, None), evecs[:, order]
     norms = np.sqrt(np.einsum("vk,v,vk->k", evecs, mass, evecs))
     return evals, evecs / norms

@@ -86,7 +86,7 @@ def tiny_checkpoint(tmp_path_factory):
     from train.loop import train
 
     overrides = [
-        "data.synthetic_shapes=3",
+        "data.synthetic_shapes=4",
         "data.synthetic_verts=300",
         "data.val_points=30",
         "model.width=8",

@@ -89,8 +89,9 @@ def test_sweep_with_joblib_launcher_and_collect(tmp_path):
     assert finished.returncode == 0, finished.stderr[-2000:]
     sweep_dir = tmp_path / "multirun" / "eval" / "sweep"
     summaries = sorted(sweep_dir.glob("*/summary.json"))
-    assert [s.parent.name for s in summaries] == ["curve.seed=0", "curve.seed=1"]
+    assert [s.parent.name for s in summaries] == ["0", "1"]
     collect_main([str(sweep_dir)])
     table = (sweep_dir / "collected.csv").read_text().splitlines()
-    assert len(table) == 3 and table[1].startswith("curve.seed=0")
+    assert len(table) == 3
+    assert table[1].startswith("curve.seed=0,0,") and table[2].startswith("curve.seed=1,1,")
     assert (sweep_dir / "curves.png").is_file()
