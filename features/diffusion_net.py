@@ -203,8 +203,9 @@ def input_features(mesh: Mesh, ops: Operators, config: ModelConfig) -> np.ndarra
 
     """
     if config.input == "wks":  # eigenvalues of the unit-area shape: invariant to scale
-        return wave_kernel_signature(ops.evals[: config.n_eig] * mesh.area,
-                                     ops.evecs[:, : config.n_eig], config.in_channels)
+        return wave_kernel_signature(
+            ops.evals[: config.n_eig] * mesh.area, ops.evecs[:, : config.n_eig], config.in_channels
+        )
     centred = mesh.verts - mesh.verts.mean(axis=0)
     return centred / np.sqrt(mesh.area)
 
@@ -287,8 +288,9 @@ class SpatialGradientFeatures(nn.Module):
         """Gradient components (V, C) each; returns features of shape (V, C)."""
         _check_channels("SpatialGradientFeatures", grad_x, self.channels)
         if grad_y.shape != grad_x.shape:
-            raise ValueError(f"gradient components differ in shape: {tuple(grad_x.shape)} "
-                             f"vs {tuple(grad_y.shape)}")
+            raise ValueError(
+                f"gradient components differ in shape: {tuple(grad_x.shape)} vs {tuple(grad_y.shape)}"
+            )
         rotated_x = self.rotation_re(grad_x) - self.rotation_im(grad_y)
         rotated_y = self.rotation_re(grad_y) + self.rotation_im(grad_x)
         return torch.tanh(grad_x * rotated_x + grad_y * rotated_y)
@@ -331,8 +333,9 @@ class DiffusionNetBlock(nn.Module):
 
     """
 
-    def __init__(self, width: int, mlp_layers: int = 2, dropout: float = 0.0,
-                 gradient_features: bool = True) -> None:
+    def __init__(
+        self, width: int, mlp_layers: int = 2, dropout: float = 0.0, gradient_features: bool = True
+    ) -> None:
         super().__init__()
         self.width = width
         self.diffusion = LearnedTimeDiffusion(width)
@@ -369,9 +372,16 @@ class DiffusionNet(nn.Module):
 
     """
 
-    def __init__(self, in_channels: int = 128, out_channels: int = 128, width: int = 128,
-                 n_blocks: int = 4, mlp_layers: int = 2, dropout: float = 0.0,
-                 gradient_features: bool = True) -> None:
+    def __init__(
+        self,
+        in_channels: int = 128,
+        out_channels: int = 128,
+        width: int = 128,
+        n_blocks: int = 4,
+        mlp_layers: int = 2,
+        dropout: float = 0.0,
+        gradient_features: bool = True,
+    ) -> None:
         super().__init__()
         self.in_channels = in_channels
         self.out_channels = out_channels
@@ -384,8 +394,15 @@ class DiffusionNet(nn.Module):
     @classmethod
     def from_config(cls, config: ModelConfig) -> DiffusionNet:
         """Build the network described by ``config``."""
-        return cls(config.in_channels, config.out_channels, config.width, config.n_blocks,
-                   config.mlp_layers, config.dropout, config.gradient_features)
+        return cls(
+            config.in_channels,
+            config.out_channels,
+            config.width,
+            config.n_blocks,
+            config.mlp_layers,
+            config.dropout,
+            config.gradient_features,
+        )
 
     def forward(self, x: torch.Tensor, ops: TorchOperators) -> torch.Tensor:
         """Per-vertex descriptors.
@@ -403,8 +420,9 @@ class DiffusionNet(nn.Module):
         """
         _check_channels("DiffusionNet", x, self.in_channels)
         if x.shape[0] != ops.n_verts:
-            raise ValueError(f"DiffusionNet: features have {x.shape[0]} vertices but the "
-                             f"operators have {ops.n_verts}")
+            raise ValueError(
+                f"DiffusionNet: features have {x.shape[0]} vertices but the operators have {ops.n_verts}"
+            )
         x = self.lift(x)
         for block in self.blocks:
             x = block(x, ops)

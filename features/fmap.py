@@ -100,8 +100,9 @@ def regularised_fmap(
     if coef_x.shape[1] != coef_y.shape[1]:
         raise ValueError(f"feature channels differ: {coef_x.shape[1]} on X, {coef_y.shape[1]} on Y")
     if mask.shape != (coef_y.shape[0], coef_x.shape[0]):
-        raise ValueError(f"mask must have shape {(coef_y.shape[0], coef_x.shape[0])}, "
-                         f"got {tuple(mask.shape)}")
+        raise ValueError(
+            f"mask must have shape {(coef_y.shape[0], coef_x.shape[0])}, got {tuple(mask.shape)}"
+        )
     gram = coef_x @ coef_x.T  # (K_x, K_x)
     systems = gram[None, :, :] + lambda_reg * torch.diag_embed(mask)  # (K_y, K_x, K_x)
     rhs = coef_y @ coef_x.T  # (K_y, K_x)
@@ -127,8 +128,9 @@ def soft_point_map(feat_a: torch.Tensor, feat_b: torch.Tensor, temperature: floa
     return torch.softmax(similarity / temperature, dim=1)
 
 
-def pointmap_to_fmap(p_yx: torch.Tensor, ops_x: TorchOperators, ops_y: TorchOperators,
-                     k: int) -> torch.Tensor:
+def pointmap_to_fmap(
+    p_yx: torch.Tensor, ops_x: TorchOperators, ops_y: TorchOperators, k: int
+) -> torch.Tensor:
     """Functional map C_xy induced by a soft point map from Y to X.
 
     A function f on X pulls back to ``P_yx f`` on Y, so
@@ -176,8 +178,13 @@ class PairTerms:
         return config.w_bij * self.bij + config.w_orth * self.orth + config.w_couple * self.couple
 
 
-def fmap_terms(feat_x: torch.Tensor, feat_y: torch.Tensor, ops_x: TorchOperators,
-               ops_y: TorchOperators, config: FmapLossConfig) -> PairTerms:
+def fmap_terms(
+    feat_x: torch.Tensor,
+    feat_y: torch.Tensor,
+    ops_x: TorchOperators,
+    ops_y: TorchOperators,
+    config: FmapLossConfig,
+) -> PairTerms:
     """Unsupervised loss terms of a shape pair.
 
     Parameters
@@ -195,8 +202,7 @@ def fmap_terms(feat_x: torch.Tensor, feat_y: torch.Tensor, ops_x: TorchOperators
     """
     k = config.n_fmap
     if ops_x.k < k or ops_y.k < k:
-        raise ValueError(f"n_fmap = {k} eigenpairs requested but the shapes have {ops_x.k} "
-                         f"and {ops_y.k}")
+        raise ValueError(f"n_fmap = {k} eigenpairs requested but the shapes have {ops_x.k} and {ops_y.k}")
     coef_x = ops_x.evecs_trans[:k] @ feat_x
     coef_y = ops_y.evecs_trans[:k] @ feat_y
     mask_xy = resolvent_mask(ops_x.evals[:k], ops_y.evals[:k], config.resolvent_gamma)
@@ -207,6 +213,7 @@ def fmap_terms(feat_x: torch.Tensor, feat_y: torch.Tensor, ops_x: TorchOperators
     orth = _squared_frobenius(c_xy.T @ c_xy - eye) + _squared_frobenius(c_yx.T @ c_yx - eye)
     p_xy = soft_point_map(feat_x, feat_y, config.temperature)
     p_yx = soft_point_map(feat_y, feat_x, config.temperature)
-    couple = _squared_frobenius(c_xy - pointmap_to_fmap(p_yx, ops_x, ops_y, k)) + \
-        _squared_frobenius(c_yx - pointmap_to_fmap(p_xy, ops_y, ops_x, k))
+    couple = _squared_frobenius(c_xy - pointmap_to_fmap(p_yx, ops_x, ops_y, k)) + _squared_frobenius(
+        c_yx - pointmap_to_fmap(p_xy, ops_y, ops_x, k)
+    )
     return PairTerms(bij, orth, couple, p_xy, p_yx)

@@ -56,26 +56,36 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     if not path.is_file():
         raise CheckpointError(f"{path}: no such checkpoint file")
     if not zipfile.is_zipfile(path):
-        raise CheckpointError(f"{path}: corrupt or unreadable checkpoint (not a torch.save archive; "
-                              "truncated or overwritten?)")
+        raise CheckpointError(
+            f"{path}: corrupt or unreadable checkpoint (not a torch.save archive; truncated or overwritten?)"
+        )
     damaged = _damaged_member(path)
     if damaged is not None:
         raise CheckpointError(f"{path}: corrupt checkpoint ({damaged})")
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, EOFError, OSError, pickle.UnpicklingError, zipfile.BadZipFile,
-            ValueError, KeyError, AttributeError) as error:
-        raise CheckpointError(f"{path}: corrupt or unreadable checkpoint "
-                              f"({_last_line(error)})") from error
+    except (
+        RuntimeError,
+        EOFError,
+        OSError,
+        pickle.UnpicklingError,
+        zipfile.BadZipFile,
+        ValueError,
+        KeyError,
+        AttributeError,
+    ) as error:
+        raise CheckpointError(f"{path}: corrupt or unreadable checkpoint ({_last_line(error)})") from error
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
-        raise CheckpointError(f"{path}: not a spidermatch training checkpoint "
-                              f"(expected format {CHECKPOINT_FORMAT!r})")
+        raise CheckpointError(
+            f"{path}: not a spidermatch training checkpoint (expected format {CHECKPOINT_FORMAT!r})"
+        )
     missing = [key for key in REQUIRED_KEYS if key not in data]
     if missing:
         raise CheckpointError(f"{path}: incomplete checkpoint, missing {', '.join(missing)}")
     if data["version"] != CHECKPOINT_VERSION:
-        raise CheckpointError(f"{path}: checkpoint version {data['version']} is not supported "
-                              f"(expected {CHECKPOINT_VERSION})")
+        raise CheckpointError(
+            f"{path}: checkpoint version {data['version']} is not supported (expected {CHECKPOINT_VERSION})"
+        )
     return data
 
 
@@ -123,8 +133,9 @@ def load_network(path: str | os.PathLike) -> tuple[DiffusionNet, ModelConfig, di
     try:
         network.load_state_dict(checkpoint["model"], strict=True)
     except (RuntimeError, TypeError, AttributeError) as error:
-        raise CheckpointError(f"{path}: network weights do not match the stored model config "
-                              f"({error})") from error
+        raise CheckpointError(
+            f"{path}: network weights do not match the stored model config ({error})"
+        ) from error
     network.eval()
     return network, config, checkpoint
 
@@ -159,14 +170,22 @@ class LearnedExtractor:
 
     name = "learned"
 
-    def __init__(self, checkpoint: str, n_eig: int = 128, adapt_steps: int = 0,
-                 adapt_lr: float = 1e-3, adapt_faces: int | None = None,
-                 use_cache: bool = True) -> None:
+    def __init__(
+        self,
+        checkpoint: str,
+        n_eig: int = 128,
+        adapt_steps: int = 0,
+        adapt_lr: float = 1e-3,
+        adapt_faces: int | None = None,
+        use_cache: bool = True,
+    ) -> None:
         self.checkpoint = str(checkpoint)
         self.network, self.config, stored = load_network(checkpoint)
         if n_eig != self.config.n_eig:
-            raise CheckpointError(f"{checkpoint}: the network was trained with n_eig = "
-                                  f"{self.config.n_eig}, but n_eig = {n_eig} was requested")
+            raise CheckpointError(
+                f"{checkpoint}: the network was trained with n_eig = "
+                f"{self.config.n_eig}, but n_eig = {n_eig} was requested"
+            )
         if adapt_steps < 0:
             raise ValueError(f"adapt_steps must be >= 0, got {adapt_steps}")
         self.n_eig = n_eig
@@ -209,8 +228,7 @@ class LearnedExtractor:
             for step in range(self.adapt_steps):
                 optimiser.zero_grad()
                 feats = [network(item.features, item.ops) for item in inputs]
-                terms = fmap_terms(feats[0], feats[1], inputs[0].ops, inputs[1].ops,
-                                   self.loss_config)
+                terms = fmap_terms(feats[0], feats[1], inputs[0].ops, inputs[1].ops, self.loss_config)
                 loss = terms.weighted(self.loss_config)
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(network.parameters(), 1.0)

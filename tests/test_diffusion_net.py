@@ -61,8 +61,10 @@ def test_invariant_to_rigid_motion(creature):
     moved = Mesh(creature.verts @ rotation.T + np.array([0.3, -2.0, 5.0]), creature.faces, "moved")
     network = _network()
     with torch.no_grad():
-        outs = [network(s.features, s.ops) for s in
-                (prepare_shape(m, SMALL, use_cache=False) for m in (creature, moved))]
+        outs = [
+            network(s.features, s.ops)
+            for s in (prepare_shape(m, SMALL, use_cache=False) for m in (creature, moved))
+        ]
     assert torch.allclose(outs[0], outs[1], atol=1e-4, rtol=0)
 
 
@@ -70,8 +72,10 @@ def test_invariant_to_uniform_scale(creature):
     scaled = Mesh(creature.verts * 3.0, creature.faces, "scaled")
     network = _network()
     with torch.no_grad():
-        outs = [network(s.features, s.ops) for s in
-                (prepare_shape(m, SMALL, use_cache=False) for m in (creature, scaled))]
+        outs = [
+            network(s.features, s.ops)
+            for s in (prepare_shape(m, SMALL, use_cache=False) for m in (creature, scaled))
+        ]
     assert torch.allclose(outs[0], outs[1], atol=1e-4, rtol=0)
 
 
@@ -93,8 +97,9 @@ def test_operators_need_gradients(creature):
         TorchOperators.from_operators(compute_operators(creature, k=10, gradients=True), 0.0)
 
 
-@pytest.mark.parametrize("bad", [dict(input="normals"), dict(input="xyz", in_channels=16),
-                                 dict(width=0), dict(dropout=1.0)])
+@pytest.mark.parametrize(
+    "bad", [dict(input="normals"), dict(input="xyz", in_channels=16), dict(width=0), dict(dropout=1.0)]
+)
 def test_model_config_rejects_bad_values(bad):
     with pytest.raises(ValueError):
         ModelConfig(**bad)
@@ -126,16 +131,17 @@ def test_gradient_features_ignore_tangent_frame_rotation():
 
 def test_regularised_fmap_matches_row_by_row_solve():
     gen = torch.Generator().manual_seed(0)
-    a, b = torch.randn(6, 20, generator=gen, dtype=torch.float64), torch.randn(5, 20, generator=gen,
-                                                                              dtype=torch.float64)
+    a, b = (
+        torch.randn(6, 20, generator=gen, dtype=torch.float64),
+        torch.randn(5, 20, generator=gen, dtype=torch.float64),
+    )
     mask = torch.rand(5, 6, generator=gen, dtype=torch.float64)
     c = regularised_fmap(a, b, mask, 2.0)
     for i in range(5):
         row = torch.linalg.solve(a @ a.T + 2.0 * torch.diag(mask[i]), a @ b[i])
         assert torch.allclose(c[i], row)
     least_squares = torch.linalg.lstsq(a.T, b.T).solution.T
-    assert torch.allclose(regularised_fmap(a, b, torch.zeros(5, 6, dtype=torch.float64), 0.0),
-                          least_squares)
+    assert torch.allclose(regularised_fmap(a, b, torch.zeros(5, 6, dtype=torch.float64), 0.0), least_squares)
 
 
 def test_resolvent_mask_and_soft_map():
@@ -197,12 +203,14 @@ def test_learned_extractor_bad_checkpoints(tmp_path):
     with pytest.raises(CheckpointError, match="n_eig = 30.*n_eig = 128"):
         LearnedExtractor(str(tmp_path / "ok.pt"), n_eig=128)
     good = torch.load(tmp_path / "ok.pt", weights_only=True)
-    _save_checkpoint(tmp_path / "unknown.pt",
-                     config={**good["config"], "model": {**good["config"]["model"], "depth": 3}})
+    _save_checkpoint(
+        tmp_path / "unknown.pt", config={**good["config"], "model": {**good["config"]["model"], "depth": 3}}
+    )
     with pytest.raises(CheckpointError, match="unknown.pt: incompatible model config"):
         LearnedExtractor(str(tmp_path / "unknown.pt"), n_eig=30)
-    _save_checkpoint(tmp_path / "wide.pt",
-                     config={**good["config"], "model": {**good["config"]["model"], "width": 32}})
+    _save_checkpoint(
+        tmp_path / "wide.pt", config={**good["config"], "model": {**good["config"]["model"], "width": 32}}
+    )
     with pytest.raises(CheckpointError, match="wide.pt: network weights do not match"):
         LearnedExtractor(str(tmp_path / "wide.pt"), n_eig=30)
     _save_checkpoint(tmp_path / "future.pt", version=99)

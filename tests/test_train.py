@@ -38,8 +38,7 @@ def tiny_config(**run) -> TrainConfig:
         loss=LossConfig(n_fmap=20),
         optim=OptimConfig(lr=5e-3, decay_every=4, decay_gamma=0.9),
         data=DataConfig(target_faces=None, use_cache=False),
-        run=RunConfig(**{"n_steps": 6, "val_every": 100, "checkpoint_every": 100,
-                         "progress": False, **run}),
+        run=RunConfig(**{"n_steps": 6, "val_every": 100, "checkpoint_every": 100, "progress": False, **run}),
     )
 
 
@@ -49,16 +48,19 @@ def shapes() -> list[TrainShape]:
 
     dataset = SyntheticShapes(n_shapes=3, n_verts=250, seed=0, n_refs=100)
     config = tiny_config()
-    return [prepare_train_shape(dataset.load(name), config.model, config.data)
-            for name in dataset.names]
+    return [prepare_train_shape(dataset.load(name), config.model, config.data) for name in dataset.names]
 
 
 def _pair_value(state, shapes, config) -> float:
     x, y = shapes[0], shapes[1]
     with torch.no_grad():
-        loss, _ = pair_loss(state.network(x.input.features, x.input.ops),
-                            state.network(y.input.features, y.input.ops),
-                            x.input.ops, y.input.ops, config.loss)
+        loss, _ = pair_loss(
+            state.network(x.input.features, x.input.ops),
+            state.network(y.input.features, y.input.ops),
+            x.input.ops,
+            y.input.ops,
+            config.loss,
+        )
     return loss.item()
 
 
@@ -87,8 +89,14 @@ def test_supervised_term(shapes):
     assert math.isfinite(value)
     with pytest.raises(ValueError, match="ground-truth"):
         x, y = shapes[:2]
-        pair_loss(x.input.features @ torch.ones(16, 16), y.input.features @ torch.ones(16, 16),
-                  x.input.ops, y.input.ops, config.loss, None)
+        pair_loss(
+            x.input.features @ torch.ones(16, 16),
+            y.input.features @ torch.ones(16, 16),
+            x.input.ops,
+            y.input.ops,
+            config.loss,
+            None,
+        )
 
 
 def _tensors_equal(a, b) -> bool:
@@ -191,14 +199,23 @@ def test_real_config_composes_and_runs(tmp_path):
     from train.cli import to_train_config
     from train.loop import train
 
-    overrides = ["data.synthetic_shapes=4", "data.synthetic_verts=250", "data.val_points=30",
-                 "model.width=8", "model.n_blocks=1", "model.n_eig=24", "model.in_channels=8",
-                 "model.out_channels=8", "loss.n_fmap=12", "run.n_steps=2", "run.val_every=1",
-                 "run.progress=false"]
+    overrides = [
+        "data.synthetic_shapes=4",
+        "data.synthetic_verts=250",
+        "data.val_points=30",
+        "model.width=8",
+        "model.n_blocks=1",
+        "model.n_eig=24",
+        "model.in_channels=8",
+        "model.out_channels=8",
+        "loss.n_fmap=12",
+        "run.n_steps=2",
+        "run.val_every=1",
+        "run.progress=false",
+    ]
     with initialize_config_module(config_module="conf", version_base="1.3"):
         cfg = compose(config_name="train", overrides=overrides)
-        faust = compose(config_name="train", overrides=["train/experiment=faust_r",
-                                                        "data.root=/nowhere"])
+        faust = compose(config_name="train", overrides=["train/experiment=faust_r", "data.root=/nowhere"])
     assert to_train_config(faust).data.train == "tr_reg_000..tr_reg_069"
     result = train(to_train_config(cfg), tmp_path)
     assert result.step == 2 and 0 <= result.best_val < 1

@@ -43,8 +43,10 @@ def train_main(cfg: DictConfig) -> float:
         print(f"spidermatch-train: error ({kind}): {error}", file=sys.stderr)
         raise SystemExit(2) from error
     status = "interrupted" if result.interrupted else "finished"
-    print(f"{status} at step {result.step}: last validation error {result.last_val:.4f}, "
-          f"best {result.best_val:.4f}; checkpoints in {out_dir}")
+    print(
+        f"{status} at step {result.step}: last validation error {result.last_val:.4f}, "
+        f"best {result.best_val:.4f}; checkpoints in {out_dir}"
+    )
     return result.best_val
 
 

@@ -118,8 +118,9 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         if self.loss.n_fmap > self.model.n_eig:
-            raise ValueError(f"loss.n_fmap = {self.loss.n_fmap} exceeds the model's n_eig = "
-                             f"{self.model.n_eig} eigenpairs")
+            raise ValueError(
+                f"loss.n_fmap = {self.loss.n_fmap} exceeds the model's n_eig = {self.model.n_eig} eigenpairs"
+            )
         for key in ("n_steps", "val_every", "checkpoint_every"):
             if getattr(self.run, key) < 1:
                 raise ValueError(f"run.{key} must be positive, got {getattr(self.run, key)}")
@@ -131,10 +132,14 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> TrainConfig:
         """Inverse of :meth:`to_dict`; unknown keys raise TypeError."""
-        sections = {"model": ModelConfig, "loss": LossConfig, "optim": OptimConfig,
-                    "data": DataConfig, "run": RunConfig}
-        kwargs = {key: sections[key](**value) if key in sections else value
-                  for key, value in values.items()}
+        sections = {
+            "model": ModelConfig,
+            "loss": LossConfig,
+            "optim": OptimConfig,
+            "data": DataConfig,
+            "run": RunConfig,
+        }
+        kwargs = {key: sections[key](**value) if key in sections else value for key, value in values.items()}
         return cls(**kwargs)
 
 
@@ -151,8 +156,10 @@ def incompatibilities(current: dict[str, Any], stored: dict[str, Any]) -> list[s
                 if section == "data" and key in RELOCATABLE_DATA_KEYS:
                     continue
                 if mine.get(key, "<missing>") != theirs.get(key, "<missing>"):
-                    differences.append(f"{section}.{key}: {mine.get(key, '<missing>')!r} "
-                                       f"(now) != {theirs.get(key, '<missing>')!r} (checkpoint)")
+                    differences.append(
+                        f"{section}.{key}: {mine.get(key, '<missing>')!r} "
+                        f"(now) != {theirs.get(key, '<missing>')!r} (checkpoint)"
+                    )
         elif mine != theirs:
             differences.append(f"{section}: {mine!r} (now) != {theirs!r} (checkpoint)")
     return differences

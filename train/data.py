@@ -69,8 +69,9 @@ class ValShape:
 
 def open_shapes(config: DataConfig) -> ShapeFolder | SyntheticShapes:
     """The dataset named by ``config.root`` (generated creatures when it is None)."""
-    return open_dataset(config.root, n_shapes=config.synthetic_shapes,
-                        n_verts=config.synthetic_verts, seed=SYNTHETIC_SEED)
+    return open_dataset(
+        config.root, n_shapes=config.synthetic_shapes, n_verts=config.synthetic_verts, seed=SYNTHETIC_SEED
+    )
 
 
 def select_names(names: Sequence[str], spec: str | Sequence[str], what: str) -> list[str]:
@@ -85,7 +86,7 @@ def select_names(names: Sequence[str], spec: str | Sequence[str], what: str) -> 
         for name in (first, last):
             if name not in ordered:
                 raise ValueError(f"{what} = {spec!r}: no shape named {name!r}")
-        chosen = ordered[ordered.index(first): ordered.index(last) + 1]
+        chosen = ordered[ordered.index(first) : ordered.index(last) + 1]
     elif isinstance(spec, str) and ":" in spec:
         try:
             bounds = [int(part) if part.strip() else None for part in spec.split(":")]
@@ -108,10 +109,10 @@ def split_names(names: Sequence[str], config: DataConfig) -> tuple[list[str], li
     """Training and validation names; unset parts default to a split by sorted order."""
     ordered = sorted(names)
     n_val = max(2, round(len(ordered) / 8))
-    train = select_names(ordered, config.train, "data.train") if config.train is not None \
-        else ordered[:-n_val]
-    val = select_names(ordered, config.val, "data.val") if config.val is not None \
-        else ordered[-n_val:]
+    train = (
+        select_names(ordered, config.train, "data.train") if config.train is not None else ordered[:-n_val]
+    )
+    val = select_names(ordered, config.val, "data.val") if config.val is not None else ordered[-n_val:]
     if len(train) < 2:
         raise ValueError(f"training needs at least 2 shapes, got {len(train)} ({train})")
     if len(val) < 2:
@@ -140,15 +141,22 @@ def prepare_val_shape(shape: Shape, model: ModelConfig, config: DataConfig) -> V
     """Full-resolution network input of one validation shape (it needs ground truth)."""
     if shape.corr is None:
         raise ValueError(f"validation shape {shape.name} has no ground truth (.vts file)")
-    return ValShape(shape.name, shape.mesh, prepare_shape(shape.mesh, model, config.use_cache),
-                    np.asarray(shape.corr, dtype=np.int64))
+    return ValShape(
+        shape.name,
+        shape.mesh,
+        prepare_shape(shape.mesh, model, config.use_cache),
+        np.asarray(shape.corr, dtype=np.int64),
+    )
 
 
-def prepare_shapes(dataset, names: list[str], prepare, model: ModelConfig, config: DataConfig,
-                   desc: str, progress: bool) -> list:
+def prepare_shapes(
+    dataset, names: list[str], prepare, model: ModelConfig, config: DataConfig, desc: str, progress: bool
+) -> list:
     """Apply ``prepare(shape, model, config)`` to every named shape, with a progress bar."""
-    return [prepare(dataset.load(name), model, config)
-            for name in tqdm(names, desc=desc, disable=not progress, leave=False)]
+    return [
+        prepare(dataset.load(name), model, config)
+        for name in tqdm(names, desc=desc, disable=not progress, leave=False)
+    ]
 
 
 class _MemoGeodesics(GeodesicDistances):
@@ -168,8 +176,11 @@ class _MemoGeodesics(GeodesicDistances):
     def from_vertices(self, vertices: np.ndarray, progress: bool = False) -> np.ndarray:
         """Distances from each of S vertices, shape (S, V) (memoised, no progress bar)."""
         vertices = np.asarray(vertices, dtype=np.int64).reshape(-1)
-        return np.stack([self.from_vertex(v) for v in vertices]) if vertices.size else \
-            np.empty((0, self.mesh.n_verts))
+        return (
+            np.stack([self.from_vertex(v) for v in vertices])
+            if vertices.size
+            else np.empty((0, self.mesh.n_verts))
+        )
 
 
 class Validator:
@@ -200,8 +211,9 @@ class Validator:
         was_training = network.training
         network.eval()
         with torch.no_grad():
-            out = [normalise_rows(network(s.input.features, s.input.ops).double().numpy())
-                   for s in self.shapes]
+            out = [
+                normalise_rows(network(s.input.features, s.input.ops).double().numpy()) for s in self.shapes
+            ]
         network.train(was_training)
         return out
 
@@ -214,7 +226,8 @@ class Validator:
             src_corr, tgt_corr = source.corr[self.rows], target.corr[self.rows]
             src_to_tgt = np.zeros(source.mesh.n_verts, dtype=np.int64)  # only src_corr is read
             src_to_tgt[src_corr] = np.argmax(feats[i][src_corr] @ feats[j].T, axis=1)
-            result = dense_map_errors(src_to_tgt, src_corr, tgt_corr, target.mesh,
-                                      geodesics=self._geodesics[j])
+            result = dense_map_errors(
+                src_to_tgt, src_corr, tgt_corr, target.mesh, geodesics=self._geodesics[j]
+            )
             errors.append(result.mean)
         return float(np.mean(errors))

@@ -106,8 +106,7 @@ def checkpoint_dict(state: TrainingState, config: TrainConfig) -> dict[str, Any]
         "optimizer": state.optimiser.state_dict(),
         "scheduler": state.scheduler.state_dict(),
         "rng": {"torch": torch.get_rng_state(), "pairs": state.generator.get_state()},
-        "metrics": {"best_val": state.best_val, "history": list(state.history),
-                    "last_loss": state.last_loss},
+        "metrics": {"best_val": state.best_val, "history": list(state.history), "last_loss": state.last_loss},
     }
 
 
@@ -126,8 +125,7 @@ def compatible_checkpoint(path: str | os.PathLike, config: TrainConfig) -> dict[
     checkpoint = read_checkpoint(path)
     differences = incompatibilities(config.to_dict(), checkpoint["config"])
     if differences:
-        raise CheckpointError(f"{path}: checkpoint from an incompatible config: "
-                              + "; ".join(differences))
+        raise CheckpointError(f"{path}: checkpoint from an incompatible config: " + "; ".join(differences))
     return checkpoint
 
 
@@ -151,8 +149,9 @@ def load_checkpoint_into(path: str | os.PathLike, state: TrainingState, config: 
         state.history = list(metrics["history"])
         state.last_loss = float(metrics["last_loss"])
     except (KeyError, RuntimeError, TypeError, ValueError) as error:
-        raise CheckpointError(f"{path}: checkpoint is incomplete or does not fit the model "
-                              f"({error})") from error
+        raise CheckpointError(
+            f"{path}: checkpoint is incomplete or does not fit the model ({error})"
+        ) from error
     state.step = int(checkpoint["step"])
 
 
@@ -173,8 +172,7 @@ def train_step(state: TrainingState, shapes: list[TrainShape], config: TrainConf
     corr = (x.corr, y.corr) if x.corr is not None and y.corr is not None else None
     loss, _ = pair_loss(feat_x, feat_y, x.input.ops, y.input.ops, config.loss, corr)
     if not torch.isfinite(loss):
-        raise FloatingPointError(f"step {state.step + 1}: loss is {float(loss)} on pair "
-                                 f"({x.name}, {y.name})")
+        raise FloatingPointError(f"step {state.step + 1}: loss is {float(loss)} on pair ({x.name}, {y.name})")
     state.optimiser.zero_grad(set_to_none=True)
     loss.backward()
     if config.optim.grad_clip > 0:
@@ -186,8 +184,7 @@ def train_step(state: TrainingState, shapes: list[TrainShape], config: TrainConf
     return state.last_loss
 
 
-def validate(state: TrainingState, validator: Validator | None, config: TrainConfig,
-             out_dir: Path) -> float:
+def validate(state: TrainingState, validator: Validator | None, config: TrainConfig, out_dir: Path) -> float:
     """Validate, record, and write ``last.pt`` (and ``best.pt`` on improvement)."""
     error = validator(state.network) if validator is not None else math.nan
     improved = error < state.best_val
@@ -226,8 +223,13 @@ def stop_on_interrupt():
         signal.signal(signal.SIGINT, previous)
 
 
-def run_training(config: TrainConfig, out_dir: str | os.PathLike, shapes: list[TrainShape],
-                 validator: Validator | None, started: float | None = None) -> TrainResult:
+def run_training(
+    config: TrainConfig,
+    out_dir: str | os.PathLike,
+    shapes: list[TrainShape],
+    validator: Validator | None,
+    started: float | None = None,
+) -> TrainResult:
     """Train on prepared shapes, validating and checkpointing into ``out_dir``.
 
     Stops after ``config.run.n_steps`` steps, at the wall-clock limit
@@ -258,8 +260,13 @@ def run_training(config: TrainConfig, out_dir: str | os.PathLike, shapes: list[T
     started = time.monotonic() if started is None else started
     deadline = math.inf if run.time_limit_min is None else started + 60 * run.time_limit_min
     losses, last_val = [], math.nan
-    bar = tqdm(total=run.n_steps, initial=min(state.step, run.n_steps), desc="train",
-               disable=not run.progress, dynamic_ncols=True)
+    bar = tqdm(
+        total=run.n_steps,
+        initial=min(state.step, run.n_steps),
+        desc="train",
+        disable=not run.progress,
+        dynamic_ncols=True,
+    )
     with bar, stop_on_interrupt() as stop:
         while state.step < run.n_steps and not stop[0]:
             losses.append(train_step(state, shapes, config))
@@ -271,13 +278,11 @@ def run_training(config: TrainConfig, out_dir: str | os.PathLike, shapes: list[T
             elif state.step % run.checkpoint_every == 0:
                 save_checkpoint(out_dir / "last.pt", state, config)
             if out_of_time:
-                logger.warning("time limit of %s min reached at step %d", run.time_limit_min,
-                               state.step)
+                logger.warning("time limit of %s min reached at step %d", run.time_limit_min, state.step)
                 break
     if stop[0]:
         save_checkpoint(out_dir / "last.pt", state, config)
-        logger.warning("stopped at step %d; continue with resume=%s", state.step,
-                       out_dir / "last.pt")
+        logger.warning("stopped at step %d; continue with resume=%s", state.step, out_dir / "last.pt")
     return TrainResult(state.step, losses, state.best_val, last_val, interrupted=stop[0])
 
 
@@ -293,13 +298,34 @@ def prepare_data(config: TrainConfig) -> tuple[list[TrainShape], Validator]:
     """Open the dataset, split it, and precompute all training and validation inputs."""
     dataset = open_shapes(config.data)
     train_names, val_names = split_names(dataset.names, config.data)
-    logger.info("%d training shapes (%s..%s), %d validation shapes (%s..%s)", len(train_names),
-                train_names[0], train_names[-1], len(val_names), val_names[0], val_names[-1])
+    logger.info(
+        "%d training shapes (%s..%s), %d validation shapes (%s..%s)",
+        len(train_names),
+        train_names[0],
+        train_names[-1],
+        len(val_names),
+        val_names[0],
+        val_names[-1],
+    )
     progress = config.run.progress
-    shapes = prepare_shapes(dataset, train_names, prepare_train_shape, config.model, config.data,
-                            "prepare training shapes", progress)
-    val_shapes = prepare_shapes(dataset, val_names, prepare_val_shape, config.model, config.data,
-                                "prepare validation shapes", progress)
+    shapes = prepare_shapes(
+        dataset,
+        train_names,
+        prepare_train_shape,
+        config.model,
+        config.data,
+        "prepare training shapes",
+        progress,
+    )
+    val_shapes = prepare_shapes(
+        dataset,
+        val_names,
+        prepare_val_shape,
+        config.model,
+        config.data,
+        "prepare validation shapes",
+        progress,
+    )
     return shapes, Validator(val_shapes, config.data.val_points)
 
 

@@ -43,8 +43,7 @@ def supervised_loss(p_xy: torch.Tensor, corr_x: torch.Tensor, corr_y: torch.Tens
     torch.Tensor, scalar
     """
     if corr_x.shape != corr_y.shape:
-        raise ValueError(f"correspondences differ in length: {tuple(corr_x.shape)} vs "
-                         f"{tuple(corr_y.shape)}")
+        raise ValueError(f"correspondences differ in length: {tuple(corr_x.shape)} vs {tuple(corr_y.shape)}")
     return -torch.log(p_xy[corr_x, corr_y].clamp(min=1e-12)).mean()
 
 
