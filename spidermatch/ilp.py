@@ -209,3 +209,18 @@ def stack_blocks(blocks: list[ConstraintBlock], costs: np.ndarray) -> IlpModel:
         np.concatenate([b.upper for b in blocks]),
         families,
     )
+
+
+def restrict_columns(model: IlpModel, columns: np.ndarray) -> IlpModel:
+    """The model on a subset of its variables (the others fixed to 0).
+
+    Parameters
+    ----------
+    model : IlpModel
+    columns : np.ndarray, shape (k,)
+        Sorted indices of the variables kept; variable i of the result is ``columns[i]``.
+
+    """
+    matrix = model.matrix[:, columns].tocsc()
+    matrix.indices = matrix.indices.astype(np.int32)
+    return IlpModel(model.costs[columns], matrix, model.row_lower, model.row_upper, model.row_families)

@@ -88,7 +88,7 @@ class MatchSettings:
     loss: RobustLoss = field(default_factory=RobustLoss)
     constraints: tuple = FAMILIES
     solver: SolverOptions = field(default_factory=SolverOptions)
-    strategy: str = "plain"
+    strategy: str = "rcfix"
 
 
 @dataclass(eq=False)

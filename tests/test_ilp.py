@@ -72,10 +72,11 @@ def brute_force(curve, graph, costs):
 
 @pytest.mark.parametrize("curve_vertices", [[0, 1, 0, 2], [0, 1, 2, 3], [0, 1, 0, 1], [0, 1, 2, 1]])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_ilp_optimum_equals_brute_force(curve_vertices, seed):
+@pytest.mark.parametrize("strategy", ["plain", "rcfix"])
+def test_ilp_optimum_equals_brute_force(curve_vertices, seed, strategy):
     curve, graph, costs = instance(curve_vertices, TRIANGLE, 3, seed)
     model = build_model(graph, curve, costs)
-    exact = solve_plain(model, graph, curve, SolverOptions(mip_rel_gap=0.0))
+    exact = solve_with_strategy(strategy, model, graph, curve, SolverOptions(mip_rel_gap=0.0))
     assert exact.status == "optimal"
     expected = brute_force(curve, graph, costs)
     assert exact.objective == pytest.approx(expected, rel=1e-9)
@@ -108,11 +109,12 @@ def test_infeasible_instance_is_reported():
         np.concatenate([model.row_upper, [2.0]]),
         {},
     )
-    solved = solve_with_strategy("plain", combined, graph, curve, SolverOptions())
-    assert solved.status == "infeasible" and solved.x is None
-    result = MatchResult(None, None, curve, graph, solved)
-    with pytest.raises(InfeasibleError, match="infeasible"):
-        result.raise_for_status()
+    for strategy in ("plain", "rcfix"):
+        solved = solve_with_strategy(strategy, combined, graph, curve, SolverOptions())
+        assert solved.status == "infeasible" and solved.x is None
+        result = MatchResult(None, None, curve, graph, solved)
+        with pytest.raises(InfeasibleError, match="infeasible"):
+            result.raise_for_status()
 
 
 def test_product_graph_and_model_sizes_follow_formula():
@@ -173,3 +175,54 @@ def test_connectivity_cuts_separate_detached_cycles_and_keep_every_path():
     rows, lower, _ = connectivity_cuts(graph, components)
     assert (rows @ x < lower).any()  # the detached cycle is cut off
     assert (rows @ solved.x >= lower).all()  # the single closed path is not
+
+
+def creature_instance(faces, seed):
+    """A small SpiderMatch instance on two synthetic creatures with random vertex-pair costs
+    (random costs make the LP relaxation fractional, as real features do at larger sizes)."""
+    from spidermatch.costs import product_edge_costs
+
+    source = decimate(make_creature(600, seed=seed).mesh.centred(), faces).mesh
+    target = decimate(make_creature(600, seed=seed + 1).mesh.centred(), faces).mesh
+    curve = spider_curve(source, seed=0)
+    graph = build_product_graph(curve.length, target.n_verts, target.edges)
+    vertex_costs = np.random.default_rng(seed).uniform(0.0, 1.0, (source.n_verts, target.n_verts))
+    costs = product_edge_costs(graph, curve.vertices, source.verts, target.verts, vertex_costs)
+    return curve, graph, build_model(graph, curve, costs)
+
+
+def test_dual_bound_is_valid_for_any_multipliers_and_fixing_keeps_the_optimum(rng):
+    from spidermatch.solve.fixing import dual_bound
+    from spidermatch.solve.strategies import solve_lp
+
+    curve, graph, model = creature_instance(24, seed=3)
+    optimum = solve_plain(model, graph, curve, SolverOptions(mip_rel_gap=0.0))
+    assert optimum.status == "optimal"
+    lp = solve_lp(model, SolverOptions())
+    assert lp.dual.bound <= optimum.objective + 1e-9
+    assert lp.dual.bound >= 0.9 * optimum.objective  # the LP duals give a useful bound
+    for _ in range(5):  # any multipliers at all, however bad, give a valid bound
+        noisy = dual_bound(model, rng.normal(0.0, 1.0, model.n_rows))
+        assert noisy.bound <= optimum.objective + 1e-9
+    survivors = lp.dual.surviving_columns(optimum.objective)
+    assert np.isin(np.flatnonzero(optimum.x), survivors).all()
+    assert survivors.size < model.n_vars  # fixing removes columns
+
+
+@pytest.mark.parametrize("seed", [3, 7])
+def test_rcfix_matches_plain_when_it_needs_the_fixing_phase(seed, monkeypatch, caplog):
+    import spidermatch.solve.strategies as strategies
+
+    curve, graph, model = creature_instance(24, seed=seed)
+    plain = solve_plain(model, graph, curve, SolverOptions(mip_rel_gap=0.0))
+    # seed the first restricted MIP with the LP support only, so the later phases must run
+    monkeypatch.setattr(strategies, "SEED_GAP", 0.0)
+    monkeypatch.setattr(strategies, "SEED_FRACTION", 0.0)
+    with caplog.at_level("INFO", logger="spidermatch.solve.strategies"):
+        fixed = solve_with_strategy("rcfix", model, graph, curve, SolverOptions(mip_rel_gap=0.0))
+    assert "rcfix phase 2" in caplog.text
+    assert fixed.status == "optimal" and plain.status == "optimal"
+    assert fixed.objective == pytest.approx(plain.objective, rel=1e-6)
+    assert fixed.bound <= plain.objective * (1 + 1e-9)
+    undirected = graph.target_edges[: graph.target_edges.shape[0] // 2]
+    assert check_solution(curve.vertices, undirected, graph.n_target, active_edges(graph, fixed.x)).ok

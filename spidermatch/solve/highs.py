@@ -211,6 +211,10 @@ class HighsSession:
         self.n_rows += rows.shape[0]
         self.nnz += int(rows.nnz)
 
+    def row_duals(self) -> np.ndarray:
+        """Row duals (m,) of the last LP solve (HiGHS's sign convention: ``r = c - A^T y``)."""
+        return np.asarray(self.highs.getSolution().row_dual, dtype=np.float64)
+
     def run(self) -> SolveResult:
         """Solve (again) and read the result.
 
