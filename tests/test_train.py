@@ -220,6 +220,9 @@ def test_real_config_composes_and_runs(tmp_path):
     result = train(to_train_config(cfg), tmp_path)
     assert result.step == 2 and 0 <= result.best_val < 1
     assert (tmp_path / "best.pt").is_file() and (tmp_path / "last.pt").is_file()
+    curve = (tmp_path / "validation.csv").read_text().splitlines()
+    assert curve[0] == "step,val_error,loss" and [row.split(",")[0] for row in curve[1:]] == ["1", "2"]
+    assert (tmp_path / "validation.png").stat().st_size > 0
     with pytest.raises(CheckpointError, match="missing.pt"):
         config = to_train_config(cfg)
         config.resume = str(tmp_path / "missing.pt")

@@ -194,8 +194,35 @@ def validate(state: TrainingState, validator: Validator | None, config: TrainCon
     save_checkpoint(out_dir / "last.pt", state, config)
     if improved:
         save_checkpoint(out_dir / "best.pt", state, config)
+    write_validation_report(state.history, out_dir)
     logger.info("step %d: validation error %.4f (best %.4f)", state.step, error, state.best_val)
     return error
+
+
+def write_validation_report(history: list[dict[str, float]], out_dir: Path) -> None:
+    """Write the validation curve so far as ``validation.csv`` and ``validation.png``."""
+    lines = ["step,val_error,loss"] + [f"{h['step']},{h['val_error']:.6f},{h['loss']:.6f}" for h in history]
+    (out_dir / "validation.csv").write_text("\n".join(lines) + "\n")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = [h["step"] for h in history]
+    errors = [h["val_error"] for h in history]
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(steps, errors, marker="o")
+    best = min(range(len(errors)), key=lambda i: errors[i] if math.isfinite(errors[i]) else math.inf)
+    ax.annotate(
+        f"best {errors[best]:.4f}", (steps[best], errors[best]), textcoords="offset points", xytext=(0, -14)
+    )
+    ax.set_xlabel("training step")
+    ax.set_ylabel("mean geodesic error (NN feature map)")
+    ax.set_title("validation")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out_dir / "validation.png", dpi=120)
+    plt.close(fig)
 
 
 @contextlib.contextmanager

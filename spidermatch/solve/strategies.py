@@ -159,6 +159,14 @@ SEED_FRACTION = 0.01  # ... and at least this fraction of all columns
 MAX_PHASES = 4
 
 
+class LpNotSolved(Exception):
+    """The LP relaxation stopped (time limit) or failed; carries HiGHS's result."""
+
+    def __init__(self, result: SolveResult) -> None:
+        super().__init__(result.message)
+        self.result = result
+
+
 @dataclass(frozen=True)
 class LpSolve:
     """The LP relaxation's solution and the certified bound from its duals."""
@@ -177,7 +185,7 @@ def solve_lp(model: IlpModel, options: SolverOptions) -> LpSolve | None:
     if result.status == "infeasible":
         return None
     if result.status != "optimal":
-        raise RuntimeError(f"LP relaxation not solved: {result.message}")
+        raise LpNotSolved(result)
     dual = dual_bound(model, session.row_duals())
     logger.info(
         "LP relaxation: value %.6g, certified bound %.6g, %d fractional values (%.1f s)",
@@ -208,7 +216,15 @@ def solve_reduced_cost_fixing(
 ) -> SolveResult:
     """LP bound, incumbent from a restricted MIP, reduced-cost fixing, final MIP on survivors."""
     start = time.perf_counter()
-    lp = solve_lp(model, options)
+    try:
+        lp = solve_lp(model, options)
+    except LpNotSolved as stopped:
+        kind = "no_solution" if stopped.result.status in ("no_solution", "feasible") else "error"
+        message = f"LP relaxation not solved: {stopped.result.message}"
+        return replace(
+            stopped.result, status=kind, x=None, objective=math.inf, bound=-math.inf, gap=math.nan,
+            wall_time=time.perf_counter() - start, message=message,
+        )  # fmt: skip
     if lp is None:
         return SolveResult(
             "infeasible", None, math.inf, math.inf, math.nan, time.perf_counter() - start,
