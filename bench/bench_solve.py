@@ -107,6 +107,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", default="bench/results/solve.json")
     args = parser.parse_args(argv)
     rows = []
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
     print(" | ".join(COLUMNS), flush=True)
     context = mp.get_context("spawn")
     for pair_text in args.pairs:
@@ -120,15 +122,16 @@ def main(argv: list[str] | None = None) -> None:
                 row["total_s"] = round(time.perf_counter() - start, 1)
                 rows.append(row)
                 print(format_row(row), flush=True)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+                write_rows(out, rows)  # after every instance: an interrupted run keeps what it measured
+    print(f"wrote {out} and {out.with_suffix('.csv')}")
+
+
+def write_rows(out: Path, rows: list[dict]) -> None:
     out.write_text(json.dumps({"argv": sys.argv, "rows": rows}, indent=2) + "\n")
     with out.with_suffix(".csv").open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    print(f"wrote {out} and {out.with_suffix('.csv')}")
-
 
 if __name__ == "__main__":
     main()
