@@ -133,5 +133,6 @@ def write_rows(out: Path, rows: list[dict]) -> None:
         writer.writeheader()
         writer.writerows(rows)
 
+
 if __name__ == "__main__":
     main()
