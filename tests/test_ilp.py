@@ -226,3 +226,17 @@ def test_rcfix_matches_plain_when_it_needs_the_fixing_phase(seed, monkeypatch, c
     assert fixed.bound <= plain.objective * (1 + 1e-9)
     undirected = graph.target_edges[: graph.target_edges.shape[0] // 2]
     assert check_solution(curve.vertices, undirected, graph.n_target, active_edges(graph, fixed.x)).ok
+
+
+def test_session_time_limit_bounds_all_runs_together():
+    """HiGHS gives every run() its whole time_limit; the session must pass on only what is left."""
+    from spidermatch.solve.highs import HighsSession
+
+    curve, graph, model = creature_instance(24, seed=3)
+    fresh = HighsSession(model, SolverOptions(time_limit=60.0))
+    assert fresh.run().status == "optimal"
+    spent = HighsSession(model, SolverOptions(time_limit=60.0))
+    spent.started -= 61.0  # as if earlier runs (e.g. connectivity-cut rounds) used the budget
+    stopped = spent.run()
+    assert stopped.status == "no_solution" and stopped.x is None
+    assert "time limit" in stopped.message.lower()

@@ -187,6 +187,7 @@ class HighsSession:
         self.n_vars = model.n_vars
         self.n_rows = model.n_rows
         self.nnz = model.nnz
+        self.started = time.perf_counter()
         self.highs = highspy.Highs()
         _configure(self.highs, self.options)
         _pass_model(self.highs, model, integer=not relax)
@@ -218,10 +219,14 @@ class HighsSession:
     def run(self) -> SolveResult:
         """Solve (again) and read the result.
 
-        HiGHS's run clock, which its ``time_limit`` is checked against, keeps counting
-        across the runs of one session, so the limit bounds all runs together.
+        ``options.time_limit`` bounds all runs of the session together (from its creation):
+        HiGHS applies its own ``time_limit`` to each ``run()`` afresh, so every run is
+        given only what is left.
         """
         start = time.perf_counter()
+        if math.isfinite(self.options.time_limit):
+            left = self.options.time_limit - (start - self.started)
+            self.highs.setOptionValue("time_limit", max(left, 0.0))
         self.highs.run()
         return _read_result(self, time.perf_counter() - start)
 

@@ -137,7 +137,7 @@ def solve_with_cuts(
         pool.add(rows, lower, upper)
         add_cuts(rows, lower, upper)
         rounds = round_number
-        result = session.run()  # HiGHS's time limit counts the session's runs together
+        result = session.run()  # the session gives each run only the time left
     x = expand(result.x, columns, model.n_vars)
     return replace(result, x=x, wall_time=time.perf_counter() - start, cut_rounds=rounds)
 
