@@ -12,6 +12,18 @@ def _private_cache(tmp_path_factory, monkeypatch):
 
 
 @pytest.fixture
+def isolated_torch(tmp_path, monkeypatch):
+    """A private operator cache per test and one torch thread (tiny tensors; the CPU is shared)."""
+    import torch
+
+    monkeypatch.setenv("SPIDERMATCH_CACHE_DIR", str(tmp_path / "cache"))
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture
 def rng():
     return np.random.default_rng(1234)
 

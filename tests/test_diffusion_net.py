@@ -24,14 +24,7 @@ from spidermatch.synthetic import make_creature
 SMALL = ModelConfig(in_channels=16, out_channels=8, width=16, n_blocks=2, n_eig=30)
 
 
-@pytest.fixture(autouse=True)
-def _isolated(tmp_path, monkeypatch):
-    """A private operator cache and one torch thread (tiny tensors; the CPU is shared)."""
-    monkeypatch.setenv("SPIDERMATCH_CACHE_DIR", str(tmp_path / "cache"))
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("isolated_torch")
 
 
 @pytest.fixture(scope="module")

@@ -20,15 +20,7 @@ from train.loop import (
 )
 from train.losses import LossConfig, pair_loss, supervised_loss
 
-
-@pytest.fixture(autouse=True)
-def _isolated(tmp_path, monkeypatch):
-    """A private operator cache and one torch thread (tiny tensors; the CPU is shared)."""
-    monkeypatch.setenv("SPIDERMATCH_CACHE_DIR", str(tmp_path / "cache"))
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("isolated_torch")
 
 
 def tiny_config(**run) -> TrainConfig:
