@@ -231,22 +231,32 @@ def _write_matching(cfg, output_dir: Path, result: MatchResult, inputs: MatchInp
         np.save(output_dir / "geodesic_errors.npy", evaluation.errors)
         logger.info("mean geodesic error against ground truth: %.4f", evaluation.mean)
     if cfg.output.png:
-        from spidermatch.plot import save_correspondence_png
+        _write_pngs(output_dir, result, inputs, report)
+    if not result.solve.proven_optimal:
+        logger.warning(
+            "the solver stopped early: this matching is NOT proven optimal (gap %.2e)", result.solve.gap
+        )
 
-        title = f"{inputs.description} | {report['status']}, gap {report.get('gap') or 0:.1e}"
-        path = save_correspondence_png(
+
+def _write_pngs(output_dir: Path, result: MatchResult, inputs: MatchInputs, report: dict) -> None:
+    """``correspondence.png`` (colour transferred source -> target) and ``spider_curve.png``."""
+    from spidermatch.plot import save_correspondence_png, save_curve_png
+
+    pairs = result.full_pairs
+    title = f"{inputs.description} | {report['status']}, gap {report.get('gap') or 0:.1e}"
+    paths = (
+        save_correspondence_png(
             inputs.source.centred(),
             inputs.target.centred(),
             pairs[:, 0],
             pairs[:, 1],
             output_dir / "correspondence.png",
             title,
-        )
+        ),
+        save_curve_png(result.source.mesh, result.curve.vertices, output_dir / "spider_curve.png"),
+    )
+    for path in paths:
         logger.info("wrote %s", path)
-    if not result.solve.proven_optimal:
-        logger.warning(
-            "the solver stopped early: this matching is NOT proven optimal (gap %.2e)", result.solve.gap
-        )
 
 
 class FeatureMemo:
