@@ -42,11 +42,13 @@ def transferred_colours(
     return source_colours[src_vertices[nearest]]
 
 
-def _draw(ax, mesh: Mesh, colours: np.ndarray, view: tuple[float, float]) -> None:
+def _draw(ax, mesh: Mesh, colours: np.ndarray, view: tuple[float, float], alpha: float = 1.0) -> None:
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     triangles = mesh.verts[mesh.faces]
-    collection = Poly3DCollection(triangles, facecolors=colours[mesh.faces].mean(axis=1), linewidths=0)
+    collection = Poly3DCollection(
+        triangles, facecolors=colours[mesh.faces].mean(axis=1), linewidths=0, alpha=alpha
+    )
     ax.add_collection3d(collection)
     low, high = mesh.verts.min(axis=0), mesh.verts.max(axis=0)
     centre, half = (low + high) / 2, (high - low).max() / 2
@@ -147,11 +149,12 @@ def save_curve_png(mesh: Mesh, curve_vertices: np.ndarray, path: str | os.PathLi
     figure = plt.figure(figsize=(4 * len(VIEWS), 4.5))
     for column, view in enumerate(VIEWS):
         ax = figure.add_subplot(1, len(VIEWS), column + 1, projection="3d")
-        _draw(ax, mesh, np.full((mesh.n_verts, 3), 0.85), view)
+        ax.computed_zorder = False  # the curve over the see-through surface, not behind it
+        _draw(ax, mesh, np.full((mesh.n_verts, 3), 0.6), view, alpha=0.25)
         points = mesh.verts[loop]
-        ax.plot(points[:, 0], points[:, 1], points[:, 2], color="tab:red", linewidth=1.0)
+        ax.plot(points[:, 0], points[:, 1], points[:, 2], color="tab:red", linewidth=1.2)
         repeated = mesh.verts[counts > 1]
-        ax.scatter(repeated[:, 0], repeated[:, 1], repeated[:, 2], color="black", s=6)
+        ax.scatter(repeated[:, 0], repeated[:, 1], repeated[:, 2], color="black", s=14)
     figure.suptitle(
         title
         or f"SpiderCurve: {len(curve_vertices)} positions, {int((counts > 1).sum())} "
