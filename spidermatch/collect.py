@@ -1,13 +1,13 @@
-"""``spidermatch-collect DIR``: gather the summaries of evaluation runs (e.g. a sweep) into one table.
+"""Gather the summaries of evaluation runs (e.g. a sweep) into one table and one figure.
 
-Finds every ``summary.json`` below DIR, prints one row per run (its settings, pairs,
-failures, mean and median geodesic error, median solve time), writes ``DIR/collected.csv``
-and draws all runs' cumulative error curves into ``DIR/curves.png``.
+Every ``summary.json`` below a folder becomes one row (the run's settings, pairs,
+failures, mean and median geodesic error, median solve time), written to
+``collected.csv``; all runs' cumulative error curves go into ``curves.png``.
+The command is ``spidermatch-collect`` (:mod:`spidermatch.cli_collect`).
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 from pathlib import Path
@@ -84,33 +84,20 @@ def collect(root: Path) -> list[dict]:
     return rows
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Console entry point."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("root", type=Path, help="folder holding evaluation runs (searched recursively)")
-    parser.add_argument("--no-plot", action="store_true", help="skip curves.png")
-    args = parser.parse_args(argv)
-    rows = collect(args.root)
-    if not rows:
-        raise SystemExit(f"{args.root}: no summary.json found below this folder")
-    print(" | ".join(COLUMNS))
-    for row in rows:
-        print(" | ".join(f"{row[c]:.4f}" if isinstance(row[c], float) else str(row[c]) for c in COLUMNS))
-    with (args.root / "collected.csv").open("w", newline="") as handle:
+def write_collected(root: Path, rows: list[dict]) -> Path:
+    """Write ``rows`` (one per run, keys :data:`COLUMNS`) to ``root/collected.csv``."""
+    path = root / "collected.csv"
+    with path.open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(COLUMNS))
         writer.writeheader()
         writer.writerows(rows)
-    print(f"wrote {args.root / 'collected.csv'}")
-    if not args.no_plot:
-        from spidermatch.plot import save_error_curves
-
-        runs = {r["run"]: collect_errors(args.root / r["folder"]) for r in rows}
-        runs = {label: errors for label, errors in runs.items() if errors.size}
-        if runs:
-            print(f"wrote {save_error_curves(runs, args.root / 'curves.png')}")
+    return path
 
 
-if __name__ == "__main__":
-    main()
+def save_collected_curves(root: Path, rows: list[dict]) -> Path | None:
+    """All runs' cumulative error curves in ``root/curves.png``; None if no run has errors."""
+    from spidermatch.plot import save_error_curves
+
+    runs = {r["run"]: collect_errors(root / r["folder"]) for r in rows}
+    runs = {label: errors for label, errors in runs.items() if errors.size}
+    return save_error_curves(runs, root / "curves.png") if runs else None

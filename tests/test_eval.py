@@ -9,7 +9,7 @@ from hydra import compose, initialize_config_module
 
 from spidermatch.batch import select_pairs
 from spidermatch.cli import run_eval
-from spidermatch.collect import main as collect_main
+from spidermatch.cli_collect import main as collect_main
 from spidermatch.datasets import SyntheticShapes, write_dataset
 
 SMALL = ["resolution=60", "synthetic.n_verts=700"]
