@@ -231,18 +231,22 @@ def _write_matching(cfg, output_dir: Path, result: MatchResult, inputs: MatchInp
         np.save(output_dir / "geodesic_errors.npy", evaluation.errors)
         logger.info("mean geodesic error against ground truth: %.4f", evaluation.mean)
     if cfg.output.png:
-        _write_pngs(output_dir, result, inputs, report)
+        _write_pngs(output_dir, result, inputs, pairs, report)
     if not result.solve.proven_optimal:
         logger.warning(
             "the solver stopped early: this matching is NOT proven optimal (gap %.2e)", result.solve.gap
         )
 
 
-def _write_pngs(output_dir: Path, result: MatchResult, inputs: MatchInputs, report: dict) -> None:
-    """``correspondence.png`` (colour transferred source -> target) and ``spider_curve.png``."""
+def _write_pngs(
+    output_dir: Path, result: MatchResult, inputs: MatchInputs, pairs: np.ndarray, report: dict
+) -> None:
+    """``correspondence.png`` (colour transferred source -> target) and ``spider_curve.png``.
+
+    ``pairs`` (N, 2) are the full-resolution (source, target) matches of ``result``.
+    """
     from spidermatch.plot import save_correspondence_png, save_curve_png
 
-    pairs = result.full_pairs
     title = f"{inputs.description} | {report['status']}, gap {report.get('gap') or 0:.1e}"
     paths = (
         save_correspondence_png(
