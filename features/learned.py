@@ -116,6 +116,12 @@ def model_config_of(checkpoint: dict[str, Any], path: str | os.PathLike) -> Mode
         raise CheckpointError(f"{path}: incompatible model config in checkpoint ({error})") from error
 
 
+def inference_weights(checkpoint: dict[str, Any]) -> dict[str, Any]:
+    """The weights to compute features with: the moving average when the run kept one."""
+    average = checkpoint.get("ema")
+    return average if average is not None else checkpoint["model"]
+
+
 def load_network(path: str | os.PathLike) -> tuple[DiffusionNet, ModelConfig, dict[str, Any]]:
     """Rebuild the trained network of a checkpoint, in eval mode.
 
@@ -131,7 +137,7 @@ def load_network(path: str | os.PathLike) -> tuple[DiffusionNet, ModelConfig, di
     config = model_config_of(checkpoint, path)
     network = DiffusionNet.from_config(config)
     try:
-        network.load_state_dict(checkpoint["model"], strict=True)
+        network.load_state_dict(inference_weights(checkpoint), strict=True)
     except (RuntimeError, TypeError, AttributeError) as error:
         raise CheckpointError(
             f"{path}: network weights do not match the stored model config ({error})"

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
 from features.diffusion_net import ModelConfig
-from features.learned import CheckpointError
+from features.learned import CheckpointError, load_network
 from train.config import DataConfig, OptimConfig, RunConfig, TrainConfig
 from train.data import TrainShape, prepare_train_shape, select_names, split_names
 from train.loop import (
@@ -114,6 +115,7 @@ def test_checkpoint_round_trip_is_bit_exact(tmp_path, shapes):
     assert restored.step == 3
     assert _tensors_equal(state.network.state_dict(), restored.network.state_dict())
     assert _tensors_equal(state.optimiser.state_dict(), restored.optimiser.state_dict())
+    assert _tensors_equal(state.average, restored.average)
     assert state.scheduler.state_dict() == restored.scheduler.state_dict()
     assert torch.equal(state.generator.get_state(), restored.generator.get_state())
     assert torch.equal(torch.get_rng_state(), rng_after_save)
@@ -131,6 +133,31 @@ def test_resume_reproduces_the_uninterrupted_run(tmp_path, shapes):
     assert resumed.step == 6
     assert resumed.losses == straight.losses[3:]  # bit-exact, not approximately
     assert (tmp_path / "second" / "last.pt").is_file()
+    ends = [torch.load(tmp_path / run / "last.pt", weights_only=True) for run in ("straight", "second")]
+    assert _tensors_equal(ends[0]["ema"], ends[1]["ema"])
+
+
+def test_weight_average_is_what_inference_loads(tmp_path, shapes):
+    config = tiny_config()
+    state = new_state(config)
+    expected = {name: value.clone() for name, value in state.network.state_dict().items()}
+    for step in range(1, 5):
+        train_step(state, shapes, config)
+        weight = min(config.optim.ema_decay, (1 + step) / (10 + step))
+        for name, value in state.network.state_dict().items():
+            expected[name] = weight * expected[name] + (1 - weight) * value
+    for name, value in expected.items():
+        torch.testing.assert_close(state.average[name], value, rtol=1e-6, atol=1e-7)
+    assert not _tensors_equal(state.average, state.network.state_dict())  # it lags the weights
+    save_checkpoint(tmp_path / "c.pt", state, config)
+    network, _, _ = load_network(tmp_path / "c.pt")
+    assert _tensors_equal(network.state_dict(), state.average)
+    config.optim.ema_decay = 0.0  # without an average, inference takes the weights themselves
+    plain = new_state(config)
+    train_step(plain, shapes, config)
+    save_checkpoint(tmp_path / "plain.pt", plain, config)
+    assert torch.load(tmp_path / "plain.pt", weights_only=True)["ema"] is None
+    assert _tensors_equal(load_network(tmp_path / "plain.pt")[0].state_dict(), plain.network.state_dict())
 
 
 def test_bad_checkpoints_are_reported(tmp_path, shapes):
@@ -155,6 +182,30 @@ def test_bad_checkpoints_are_reported(tmp_path, shapes):
         load_checkpoint_into(tmp_path / "good.pt", new_state(other), other)
     longer = tiny_config(n_steps=50, val_every=7)  # run length may change on resume
     load_checkpoint_into(tmp_path / "good.pt", new_state(longer), longer)
+
+
+def test_validator_agrees_with_the_evaluation_module():
+    from spidermatch.datasets import SyntheticShapes
+    from spidermatch.evaluate import dense_map_errors
+    from train.data import Validator, prepare_val_shape
+
+    config = tiny_config()
+    dataset = SyntheticShapes(n_shapes=3, n_verts=250, seed=1, n_refs=100)
+    val_shapes = [prepare_val_shape(dataset.load(name), config.model, config.data) for name in dataset.names]
+    network = new_state(config).network
+    for val_points in (None, 30):
+        validator = Validator(val_shapes, val_points)
+        feats = validator.features(network)
+        expected = []
+        for i, j in validator.pairs:
+            source, target = val_shapes[i], val_shapes[j]
+            src_to_tgt = np.argmax(feats[i] @ feats[j].T, axis=1)
+            rows = validator.rows
+            result = dense_map_errors(src_to_tgt, source.corr[rows], target.corr[rows], target.mesh)
+            expected.append(result.mean)
+        assert validator.rows.size == (100 if val_points is None else 30)
+        assert validator(network) == pytest.approx(np.mean(expected), rel=1e-6)
+        assert validator(network) > 0.01  # an untrained network is far from the truth
 
 
 def test_config_validation():

@@ -66,6 +66,10 @@ class OptimConfig:
     decay_gamma : float
     grad_clip : float
         Maximum gradient norm (0 disables clipping).
+    ema_decay : float
+        Keep an exponential moving average of the weights with this decay per step
+        (0 disables it). Validation, ``best.pt`` and inference use the average;
+        early steps use the smaller decay ``(1 + step) / (10 + step)``.
     """
 
     lr: float = 1e-3
@@ -73,6 +77,7 @@ class OptimConfig:
     decay_every: int = 2500
     decay_gamma: float = 0.5
     grad_clip: float = 1.0
+    ema_decay: float = 0.999
 
 
 @dataclass
@@ -121,6 +126,8 @@ class TrainConfig:
             raise ValueError(
                 f"loss.n_fmap = {self.loss.n_fmap} exceeds the model's n_eig = {self.model.n_eig} eigenpairs"
             )
+        if not 0.0 <= self.optim.ema_decay < 1.0:
+            raise ValueError(f"optim.ema_decay must be in [0, 1), got {self.optim.ema_decay}")
         for key in ("n_steps", "val_every", "checkpoint_every"):
             if getattr(self.run, key) < 1:
                 raise ValueError(f"run.{key} must be positive, got {getattr(self.run, key)}")

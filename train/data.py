@@ -19,7 +19,6 @@ from tqdm.auto import tqdm
 from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
 from features.wks import normalise_rows
 from spidermatch.datasets import Shape, ShapeFolder, SyntheticShapes, open_dataset
-from spidermatch.evaluate import dense_map_errors
 from spidermatch.geodesics import GeodesicDistances
 from spidermatch.mesh import Mesh
 from spidermatch.remesh import decimate
@@ -159,44 +158,24 @@ def prepare_shapes(
     ]
 
 
-class _MemoGeodesics(GeodesicDistances):
-    """Geodesic distances that keep every distance field computed (float32)."""
-
-    def __init__(self, mesh: Mesh) -> None:
-        super().__init__(mesh)
-        self._fields: dict[int, np.ndarray] = {}
-
-    def from_vertex(self, vertex: int) -> np.ndarray:
-        """Distances from ``vertex`` to all vertices, shape (V,), memoised."""
-        vertex = int(vertex)
-        if vertex not in self._fields:
-            self._fields[vertex] = super().from_vertex(vertex).astype(np.float32)
-        return self._fields[vertex].astype(np.float64)
-
-    def from_vertices(self, vertices: np.ndarray, progress: bool = False) -> np.ndarray:
-        """Distances from each of S vertices, shape (S, V) (memoised, no progress bar)."""
-        vertices = np.asarray(vertices, dtype=np.int64).reshape(-1)
-        return (
-            np.stack([self.from_vertex(v) for v in vertices])
-            if vertices.size
-            else np.empty((0, self.mesh.n_verts))
-        )
-
-
 class Validator:
     """Mean geodesic error of the nearest-neighbour feature map on validation pairs.
 
     Every ordered pair of validation shapes is evaluated at full resolution on the
-    same evenly spaced subset of reference points; geodesic fields are memoised.
+    same evenly spaced subset of reference points (all of them by default). The
+    geodesic distances from each shape's reference vertices are computed once, on
+    the first call, and kept as float32 tables (K x V per shape).
 
     Parameters
     ----------
     shapes : list of ValShape
     val_points : int, optional
         Reference points per pair (None: all).
+    progress : bool
+        Show a progress bar while the distance tables are computed.
     """
 
-    def __init__(self, shapes: list[ValShape], val_points: int | None = None) -> None:
+    def __init__(self, shapes: list[ValShape], val_points: int | None = None, progress: bool = False) -> None:
         n_refs = min(len(shape.corr) for shape in shapes)
         if any(len(shape.corr) != n_refs for shape in shapes):
             raise ValueError("validation shapes have ground truth of different lengths")
@@ -204,7 +183,22 @@ class Validator:
         self.rows = np.unique(np.linspace(0, n_refs - 1, count).round().astype(np.int64))
         self.shapes = shapes
         self.pairs = list(itertools.permutations(range(len(shapes)), 2))
-        self._geodesics = [_MemoGeodesics(shape.mesh) for shape in shapes]
+        self._tables: list[np.ndarray] | None = None
+        self.progress = progress
+
+    def distance_tables(self) -> list[np.ndarray]:
+        """Per shape, normalised geodesic distances from its reference vertices, (K, V) float32."""
+        if self._tables is None:
+            tables = []
+            bar = tqdm(self.shapes, desc="validation geodesics", leave=False, disable=not self.progress)
+            for shape in bar:
+                fields = GeodesicDistances(shape.mesh).from_vertices(shape.corr[self.rows])
+                tables.append((fields / np.sqrt(shape.mesh.area)).astype(np.float32))
+            self._tables = tables
+            logger.info(
+                "validation: geodesic tables for %d shapes x %d reference points", len(tables), self.rows.size
+            )
+        return self._tables
 
     def features(self, network: DiffusionNet) -> list[np.ndarray]:
         """L2-normalised descriptors of every validation shape, each (V, C_out)."""
@@ -217,17 +211,14 @@ class Validator:
         network.train(was_training)
         return out
 
+    def pair_errors(self, feats: list[np.ndarray], i: int, j: int) -> np.ndarray:
+        """Errors of the nearest-neighbour map from shape i to shape j, one per reference point (K,)."""
+        source_refs = self.shapes[i].corr[self.rows]
+        predicted = np.argmax(feats[i][source_refs] @ feats[j].T, axis=1)
+        table = self.distance_tables()[j]
+        return table[np.arange(self.rows.size), predicted].astype(np.float64)
+
     def __call__(self, network: DiffusionNet) -> float:
         """Mean over pairs of the pair's mean normalised geodesic error."""
         feats = self.features(network)
-        errors = []
-        for i, j in self.pairs:
-            source, target = self.shapes[i], self.shapes[j]
-            src_corr, tgt_corr = source.corr[self.rows], target.corr[self.rows]
-            src_to_tgt = np.zeros(source.mesh.n_verts, dtype=np.int64)  # only src_corr is read
-            src_to_tgt[src_corr] = np.argmax(feats[i][src_corr] @ feats[j].T, axis=1)
-            result = dense_map_errors(
-                src_to_tgt, src_corr, tgt_corr, target.mesh, geodesics=self._geodesics[j]
-            )
-            errors.append(result.mean)
-        return float(np.mean(errors))
+        return float(np.mean([self.pair_errors(feats, i, j).mean() for i, j in self.pairs]))

@@ -5,7 +5,9 @@ A checkpoint is a ``torch.save`` dictionary (readable with ``weights_only=True``
     format, version        framing, checked by features.learned.read_checkpoint
     config                 TrainConfig.to_dict()
     step                   optimisation steps completed
-    model                  DiffusionNet state_dict
+    model                  DiffusionNet state_dict (the weights being optimised)
+    ema                    moving average of ``model`` (None when optim.ema_decay is 0);
+                           validation, ``best.pt`` selection and inference use it
     optimizer, scheduler   their state_dicts
     rng                    torch global RNG state and the pair sampler's state
     metrics                best validation error, validation history, last loss
@@ -16,6 +18,7 @@ Resuming restores all of it, so the next losses equal those of an uninterrupted 
 from __future__ import annotations
 
 import contextlib
+import copy
 import logging
 import math
 import os
@@ -55,6 +58,7 @@ class TrainingState:
     optimiser: torch.optim.Optimizer
     scheduler: torch.optim.lr_scheduler.LRScheduler
     generator: torch.Generator
+    average: dict[str, torch.Tensor] | None = None
     step: int = 0
     best_val: float = math.inf
     history: list[dict[str, float]] = field(default_factory=list)
@@ -92,7 +96,40 @@ def new_state(config: TrainConfig) -> TrainingState:
     optimiser = torch.optim.Adam(network.parameters(), lr=optim.lr, weight_decay=optim.weight_decay)
     scheduler = torch.optim.lr_scheduler.StepLR(optimiser, optim.decay_every, optim.decay_gamma)
     generator = torch.Generator().manual_seed(config.seed)
-    return TrainingState(network, optimiser, scheduler, generator)
+    average = weight_copy(network) if optim.ema_decay > 0 else None
+    return TrainingState(network, optimiser, scheduler, generator, average)
+
+
+def weight_copy(network: torch.nn.Module) -> dict[str, torch.Tensor]:
+    """Detached copies of a network's state_dict tensors."""
+    return {name: tensor.detach().clone() for name, tensor in network.state_dict().items()}
+
+
+def update_average(state: TrainingState, decay: float) -> None:
+    """Move the weight average towards the current weights (after step ``state.step``).
+
+    The first steps use the smaller decay ``(1 + step) / (10 + step)`` so that the
+    average forgets its random initial weights quickly.
+    """
+    if state.average is None:
+        return
+    weight = min(decay, (1.0 + state.step) / (10.0 + state.step))
+    with torch.no_grad():
+        for name, current in state.network.state_dict().items():
+            averaged = state.average[name]
+            if averaged.is_floating_point():
+                averaged.mul_(weight).add_(current.detach(), alpha=1.0 - weight)
+            else:
+                averaged.copy_(current)
+
+
+def evaluation_network(state: TrainingState) -> DiffusionNet:
+    """The network that validation and inference use: the weight average if kept."""
+    if state.average is None:
+        return state.network
+    network = copy.deepcopy(state.network)
+    network.load_state_dict(state.average)
+    return network
 
 
 def checkpoint_dict(state: TrainingState, config: TrainConfig) -> dict[str, Any]:
@@ -103,6 +140,7 @@ def checkpoint_dict(state: TrainingState, config: TrainConfig) -> dict[str, Any]
         "config": config.to_dict(),
         "step": state.step,
         "model": state.network.state_dict(),
+        "ema": state.average,
         "optimizer": state.optimiser.state_dict(),
         "scheduler": state.scheduler.state_dict(),
         "rng": {"torch": torch.get_rng_state(), "pairs": state.generator.get_state()},
@@ -142,13 +180,17 @@ def load_checkpoint_into(path: str | os.PathLike, state: TrainingState, config: 
         state.network.load_state_dict(checkpoint["model"])
         state.optimiser.load_state_dict(checkpoint["optimizer"])
         state.scheduler.load_state_dict(checkpoint["scheduler"])
+        if state.average is not None:
+            state.average = {name: tensor.clone() for name, tensor in checkpoint["ema"].items()}
+            if state.average.keys() != state.network.state_dict().keys():
+                raise KeyError("the weight average does not have the model's tensors")
         torch.set_rng_state(checkpoint["rng"]["torch"])
         state.generator.set_state(checkpoint["rng"]["pairs"])
         metrics = checkpoint["metrics"]
         state.best_val = float(metrics["best_val"])
         state.history = list(metrics["history"])
         state.last_loss = float(metrics["last_loss"])
-    except (KeyError, RuntimeError, TypeError, ValueError) as error:
+    except (AttributeError, KeyError, RuntimeError, TypeError, ValueError) as error:
         raise CheckpointError(
             f"{path}: checkpoint is incomplete or does not fit the model ({error})"
         ) from error
@@ -180,13 +222,14 @@ def train_step(state: TrainingState, shapes: list[TrainShape], config: TrainConf
     state.optimiser.step()
     state.scheduler.step()
     state.step += 1
+    update_average(state, config.optim.ema_decay)
     state.last_loss = loss.item()
     return state.last_loss
 
 
 def validate(state: TrainingState, validator: Validator | None, config: TrainConfig, out_dir: Path) -> float:
     """Validate, record, and write ``last.pt`` (and ``best.pt`` on improvement)."""
-    error = validator(state.network) if validator is not None else math.nan
+    error = validator(evaluation_network(state)) if validator is not None else math.nan
     improved = error < state.best_val
     if improved:
         state.best_val = error
@@ -351,7 +394,7 @@ def prepare_data(config: TrainConfig) -> tuple[list[TrainShape], Validator]:
         "prepare validation shapes",
         progress,
     )
-    return shapes, Validator(val_shapes, config.data.val_points)
+    return shapes, Validator(val_shapes, config.data.val_points, progress)
 
 
 def train(config: TrainConfig, out_dir: str | os.PathLike) -> TrainResult:
