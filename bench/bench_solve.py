@@ -40,7 +40,7 @@ COLUMNS = (
 
 
 def run_instance(args: tuple) -> dict:
-    data, pair, faces, strategy, features, time_limit, checkpoint = args
+    data, pair, faces, strategy, features, time_limit, checkpoint, highs = args
 
     from spidermatch.datasets import open_dataset
     from spidermatch.evaluate import sparse_map_errors
@@ -58,7 +58,8 @@ def run_instance(args: tuple) -> dict:
 
         extractor = LearnedExtractor(checkpoint)
     feat_x, feat_y = extractor(x.mesh.centred()), extractor(y.mesh.centred())
-    settings = MatchSettings(resolution=faces, strategy=strategy, solver=SolverOptions(time_limit=time_limit))
+    solver = SolverOptions(time_limit=time_limit, extra=highs)
+    settings = MatchSettings(resolution=faces, strategy=strategy, solver=solver)
     result = match(x.mesh, y.mesh, feat_x, feat_y, settings)
     row = {
         "pair": f"{pair[0]}:{pair[1]}",
@@ -85,6 +86,19 @@ def run_instance(args: tuple) -> dict:
     return row
 
 
+def highs_option(text: str) -> tuple[str, object]:
+    """``NAME=VALUE`` as a HiGHS option, VALUE read as int, float or bool where it is one."""
+    name, sep, value = text.partition("=")
+    if not sep or not name:
+        raise SystemExit(f"--highs expects NAME=VALUE, got {text!r}")
+    for convert in (int, float):
+        try:
+            return name, convert(value)
+        except ValueError:
+            pass
+    return name, {"true": True, "false": False}.get(value.lower(), value)
+
+
 def format_row(row: dict) -> str:
     cells = []
     for key in COLUMNS:
@@ -105,7 +119,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--checkpoint", default=None)
     parser.add_argument("--time-limit", type=float, default=600.0)
     parser.add_argument("--out", default="bench/results/solve.json")
+    parser.add_argument(
+        "--highs",
+        nargs="*",
+        default=[],
+        metavar="NAME=VALUE",
+        help="extra HiGHS options for every solve, e.g. mip_pscost_minreliable=0",
+    )
     args = parser.parse_args(argv)
+    highs = dict(highs_option(text) for text in args.highs)
     rows = []
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -116,6 +138,7 @@ def main(argv: list[str] | None = None) -> None:
         for faces in args.resolutions:
             for strategy in args.strategies:
                 task = (args.data, pair, faces, strategy, args.features, args.time_limit, args.checkpoint)
+                task += (highs,)
                 start = time.perf_counter()
                 with context.Pool(1) as pool:
                     row = pool.apply(run_instance, (task,))
@@ -123,6 +146,8 @@ def main(argv: list[str] | None = None) -> None:
                 rows.append(row)
                 print(format_row(row), flush=True)
                 write_rows(out, rows)  # after every instance: an interrupted run keeps what it measured
+    if highs:
+        print(f"HiGHS options: {highs}")
     print(f"wrote {out} and {out.with_suffix('.csv')}")
 
 
