@@ -259,7 +259,9 @@ def test_real_config_composes_and_runs(tmp_path):
     with initialize_config_module(config_module="conf", version_base="1.3"):
         cfg = compose(config_name="train", overrides=overrides)
         faust = compose(config_name="train", overrides=["train/experiment=faust_r", "data.root=/nowhere"])
-    assert to_train_config(faust).data.train == "tr_reg_000..tr_reg_069"
+    faust_config = to_train_config(faust)
+    assert faust_config.data.train == "tr_reg_000..tr_reg_069"
+    assert faust_config.model.dropout == 0.5 and faust_config.data.val_points is None
     result = train(to_train_config(cfg), tmp_path)
     assert result.step == 2 and 0 <= result.best_val < 1
     assert (tmp_path / "best.pt").is_file() and (tmp_path / "last.pt").is_file()
