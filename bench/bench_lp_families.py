@@ -17,8 +17,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 SUBSETS = (("CYC", "CON"), ("CYC", "CON", "PES"), ("CYC", "CON", "ANS"), ("CYC", "CON", "PES", "ANS"))
 
 
@@ -38,8 +36,8 @@ def main(argv: list[str] | None = None) -> None:
     from spidermatch.datasets import open_dataset
     from spidermatch.ilp import build_model
     from spidermatch.pipeline import MatchSettings, prepare
-    from spidermatch.solve.highs import SolverOptions
-    from spidermatch.solve.strategies import solve_lp, solve_with_strategy
+    from spidermatch.solve.highs import SolverOptions, relative_gap
+    from spidermatch.solve.strategies import count_fractional, solve_lp, solve_with_strategy
 
     source, target = args.pair.split(":")
     dataset = open_dataset(args.data)
@@ -59,13 +57,13 @@ def main(argv: list[str] | None = None) -> None:
         row = {
             "families": "+".join(families),
             "lp_value": lp.dual.bound,
-            "fractional": int(np.sum((lp.x > 1e-6) & (lp.x < 1 - 1e-6))),
+            "fractional": count_fractional(lp.x),
             "lp_s": round(time.perf_counter() - start, 2),
         }
         if args.mip:
             result = solve_with_strategy("rcfix", sub, graph, curve, options)
             row.update(optimum=result.objective, status=result.status)
-            row["gap"] = (result.objective - lp.dual.bound) / result.objective
+            row["gap"] = relative_gap(result.objective, lp.dual.bound)
         rows.append(row)
         print(
             " | ".join(

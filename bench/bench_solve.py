@@ -137,8 +137,8 @@ def main(argv: list[str] | None = None) -> None:
         pair = tuple(pair_text.split(":"))
         for faces in args.resolutions:
             for strategy in args.strategies:
-                task = (args.data, pair, faces, strategy, args.features, args.time_limit, args.checkpoint)
-                task += (highs,)
+                settings = (strategy, args.features, args.time_limit, args.checkpoint, highs)
+                task = (args.data, pair, faces, *settings)
                 start = time.perf_counter()
                 with context.Pool(1) as pool:
                     row = pool.apply(run_instance, (task,))

@@ -96,13 +96,13 @@ def new_state(config: TrainConfig) -> TrainingState:
     optimiser = torch.optim.Adam(network.parameters(), lr=optim.lr, weight_decay=optim.weight_decay)
     scheduler = torch.optim.lr_scheduler.StepLR(optimiser, optim.decay_every, optim.decay_gamma)
     generator = torch.Generator().manual_seed(config.seed)
-    average = weight_copy(network) if optim.ema_decay > 0 else None
+    average = weight_copy(network.state_dict()) if optim.ema_decay > 0 else None
     return TrainingState(network, optimiser, scheduler, generator, average)
 
 
-def weight_copy(network: torch.nn.Module) -> dict[str, torch.Tensor]:
-    """Detached copies of a network's state_dict tensors."""
-    return {name: tensor.detach().clone() for name, tensor in network.state_dict().items()}
+def weight_copy(weights: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Detached copies of the tensors of a state_dict."""
+    return {name: tensor.detach().clone() for name, tensor in weights.items()}
 
 
 def update_average(state: TrainingState, decay: float) -> None:
@@ -181,7 +181,7 @@ def load_checkpoint_into(path: str | os.PathLike, state: TrainingState, config: 
         state.optimiser.load_state_dict(checkpoint["optimizer"])
         state.scheduler.load_state_dict(checkpoint["scheduler"])
         if state.average is not None:
-            state.average = {name: tensor.clone() for name, tensor in checkpoint["ema"].items()}
+            state.average = weight_copy(checkpoint["ema"])
             if state.average.keys() != state.network.state_dict().keys():
                 raise KeyError("the weight average does not have the model's tensors")
         torch.set_rng_state(checkpoint["rng"]["torch"])

@@ -176,6 +176,11 @@ class LpSolve:
     wall_time: float
 
 
+def count_fractional(x: np.ndarray, tolerance: float = 1e-6) -> int:
+    """How many entries of an LP solution x (n,) are more than ``tolerance`` away from 0 and 1."""
+    return int(np.sum((x > tolerance) & (x < 1 - tolerance)))
+
+
 def solve_lp(model: IlpModel, options: SolverOptions) -> LpSolve | None:
     """LP relaxation by dual simplex without presolve; None if it is infeasible."""
     start = time.perf_counter()
@@ -191,7 +196,7 @@ def solve_lp(model: IlpModel, options: SolverOptions) -> LpSolve | None:
         "LP relaxation: value %.6g, certified bound %.6g, %d fractional values (%.1f s)",
         result.objective,
         dual.bound,
-        int(np.sum((result.x > 1e-6) & (result.x < 1 - 1e-6))),
+        count_fractional(result.x),
         time.perf_counter() - start,
     )
     return LpSolve(result.x, dual, time.perf_counter() - start)
