@@ -85,3 +85,31 @@ def connectivity_cuts(
     ).tocsr()
     rows.sum_duplicates()
     return rows, np.zeros(n_rows), np.full(n_rows, np.inf)
+
+
+def two_cycle_components(graph: ProductGraph, layers: np.ndarray, columns: np.ndarray) -> list[np.ndarray]:
+    """Node pairs {(l, a), (l, b)} with both intra edges a->b and b->a among ``columns``.
+
+    Parameters
+    ----------
+    graph : ProductGraph
+    layers : np.ndarray, shape (k,)
+        Layers to look in.
+    columns : np.ndarray, shape (m,)
+        Full-model edge ids.
+
+    Returns
+    -------
+    list of np.ndarray
+        Product vertex ids ``[l * V_Y + a, l * V_Y + b]`` (a < b), one array per pair.
+
+    """
+    layer, k = np.divmod(np.asarray(columns, dtype=np.int64), graph.block_size)
+    keep = (graph.block_kind[k] == INTRA) & np.isin(layer, layers)
+    layer, src, dst = layer[keep], graph.block_src[k[keep]], graph.block_dst[k[keep]]
+    n = graph.n_target
+    forward = (layer * n + src) * n + dst
+    backward = (layer * n + dst) * n + src
+    both = (src < dst) & np.isin(forward, backward)
+    first, second = layer[both] * n + src[both], layer[both] * n + dst[both]
+    return [np.array(pair) for pair in zip(first.tolist(), second.tolist())]
