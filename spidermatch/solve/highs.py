@@ -179,6 +179,12 @@ class HighsSession:
     relax : bool
         Solve the LP relaxation (x in [0, 1]) instead of the ILP.
 
+    Attributes
+    ----------
+    improving : list of (float, np.ndarray)
+        Every improving solution HiGHS reported during the MIP runs of this session, as
+        (objective, x of shape (n,)), oldest first. Lazy rows added later may cut some off.
+
     """
 
     def __init__(self, model: IlpModel, options: SolverOptions | None = None, relax: bool = False) -> None:
@@ -191,6 +197,16 @@ class HighsSession:
         self.highs = highspy.Highs()
         _configure(self.highs, self.options)
         _pass_model(self.highs, model, integer=not relax)
+        self.improving: list[tuple[float, np.ndarray]] = []
+        if not relax:
+            self.highs.setCallback(self._record_improving, None)
+            self.highs.startCallback(highspy.cb.HighsCallbackType.kCallbackMipImprovingSolution)
+
+    def _record_improving(self, kind, message, data_out, data_in, user_data) -> None:
+        """HiGHS callback: keep a copy of each improving solution."""
+        x = np.array(data_out.mip_solution, dtype=np.float64)
+        if x.shape == (self.n_vars,):
+            self.improving.append((float(data_out.objective_function_value), x))
 
     def set_solution(self, x: np.ndarray) -> None:
         """Offer a feasible 0/1 vector (n,) as a starting incumbent."""
