@@ -153,28 +153,36 @@ def test_checker_detects_broken_solutions():
     assert len(path.entry) == 4 and len(path.edges) == len(tuples)
 
 
-def test_connectivity_cuts_separate_detached_cycles_and_keep_every_path():
-    from spidermatch.solve.connectivity import connectivity_cuts, detached_components
-
+def square_instance_with_detached_copy():
+    """The optimum of a small instance, and a copy with one detached intra-layer 2-cycle added."""
     square = np.array([[0, 1], [1, 2], [2, 3], [0, 3], [0, 2]])
     curve, graph, costs = instance([0, 1, 0, 2], square, 4, 4)
     solved = solve_plain(build_model(graph, curve, costs), graph, curve, SolverOptions(mip_rel_gap=0.0))
-    x = solved.x.copy()
-    assert detached_components(graph, x) == []
-    visited = {(int(layer), int(y)) for layer, y in extract_path(graph, x).layer_vertex_pairs()}
+    visited = {(int(layer), int(y)) for layer, y in extract_path(graph, solved.x).layer_vertex_pairs()}
     layer, a, b = next(
         (layer, a, b)
         for layer in range(4)
         for a, b in square.tolist()
         if (layer, a) not in visited and (layer, b) not in visited
     )
-    x[edge_id(graph, layer, a, b, INTRA)] = x[edge_id(graph, layer, b, a, INTRA)] = 1  # a detached 2-cycle
-    components = detached_components(graph, x)
+    detached = solved.x.copy()
+    detached[edge_id(graph, layer, a, b, INTRA)] = detached[edge_id(graph, layer, b, a, INTRA)] = 1
+    return graph, costs, solved.x, detached
+
+
+def test_connectivity_cuts_separate_detached_cycles_and_keep_every_path():
+    from spidermatch.solve.connectivity import connectivity_cuts, detached_components
+
+    graph, _, optimum, detached = square_instance_with_detached_copy()
+    assert detached_components(graph, optimum) == []
+    components = detached_components(graph, detached)
     assert len(components) == 1
+    added = np.flatnonzero(detached != optimum)  # the two intra edges of the detached 2-cycle
+    layer, a, _, b, _ = graph.edge_tuples(added)[0]
     assert sorted(components[0].tolist()) == sorted([layer * 4 + a, layer * 4 + b])
     rows, lower, _ = connectivity_cuts(graph, components)
-    assert (rows @ x < lower).any()  # the detached cycle is cut off
-    assert (rows @ solved.x >= lower).all()  # the single closed path is not
+    assert (rows @ detached < lower).any()  # the detached cycle is cut off
+    assert (rows @ optimum >= lower).all()  # the single closed path is not
 
 
 def creature_instance(faces, seed):
@@ -240,3 +248,43 @@ def test_session_time_limit_bounds_all_runs_together():
     stopped = spent.run()
     assert stopped.status == "no_solution" and stopped.x is None
     assert "time limit" in stopped.message.lower()
+
+
+def test_two_cycle_cuts_cover_the_two_cycles_of_the_chosen_layers_once():
+    from spidermatch.solve.connectivity import two_cycle_components
+    from spidermatch.solve.strategies import CutPool
+
+    graph, _, optimum, detached = square_instance_with_detached_copy()
+    everything = np.arange(graph.n_edges)
+    pairs = two_cycle_components(graph, np.array([0, 1, 2, 3]), everything)
+    assert len(pairs) == 4 * 5  # every undirected square edge in every layer
+    one_way = np.setdiff1d(everything, [edge_id(graph, 1, 0, 1, INTRA)])  # 1->0 alone is no 2-cycle
+    in_layer_1 = {tuple(p) for p in two_cycle_components(graph, np.array([1]), one_way)}
+    assert len(in_layer_1) == 4 and (4 + 0, 4 + 1) not in in_layer_1
+    pool = CutPool()
+    assert pool.add_two_cycle_cuts(graph, np.array([0, 1, 2, 3]), everything) == 2 * len(pairs)
+    assert pool.add_two_cycle_cuts(graph, np.array([1]), everything) == 0  # already in the pool
+    assert (pool.rows @ optimum >= pool.lower).all()  # valid for the closed path
+    assert (pool.rows @ detached < pool.lower).any()  # and they cut off the detached 2-cycle
+
+
+def test_session_records_improving_solutions_and_restart_skips_detached_ones():
+    from types import SimpleNamespace
+
+    from spidermatch.solve.highs import HighsSession
+    from spidermatch.solve.strategies import cheapest_connected
+
+    curve, graph, model = creature_instance(24, seed=3)
+    session = HighsSession(model, SolverOptions(mip_rel_gap=0.0))
+    result = session.run()
+    objectives = [objective for objective, _ in session.improving]
+    assert objectives and all(later < earlier for earlier, later in zip(objectives, objectives[1:]))
+    assert objectives[-1] == pytest.approx(result.objective, rel=1e-9)
+    assert np.array_equal(np.round(session.improving[-1][1]), result.x)
+
+    graph, costs, optimum, detached = square_instance_with_detached_copy()
+    found = SimpleNamespace(improving=[(costs @ optimum + 1.0, optimum), (costs @ detached - 1.0, detached)])
+    assert np.array_equal(cheapest_connected(graph, found, None, graph.n_edges), optimum)
+    assert (
+        cheapest_connected(graph, SimpleNamespace(improving=found.improving[1:]), None, graph.n_edges) is None
+    )

@@ -8,10 +8,13 @@ is one closed path and whose bound is valid for every such path of the **full** 
     (:mod:`spidermatch.solve.connectivity`) while its optimum has detached cycles.
 ``rcfix``
     LP relaxation first; its duals give a certified bound and reduced costs
-    (:mod:`spidermatch.solve.fixing`). A MIP over the columns of small reduced cost
-    gives an incumbent U; every column whose reduced-cost bound exceeds U is provably
-    unused by any better solution and dropped; the MIP over the survivors, started from
-    the incumbent, proves optimality for the full model.
+    (:mod:`spidermatch.solve.fixing`). A MIP over the columns of small reduced cost,
+    stopped at a 1 % gap, gives an incumbent U; every column whose reduced-cost bound
+    exceeds U is provably unused by any better solution and dropped; the MIP over the
+    survivors, started from the incumbent, proves optimality for the full model.
+    Connectivity cuts for the intra-layer 2-cycles of self-intersection layers go in
+    up front (the detached cycles that otherwise cost a full re-solve), and a re-solve
+    after new cuts restarts from the best connected solution HiGHS has reported.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -28,7 +31,7 @@ import scipy.sparse as sp
 from spidermatch.curve import SpiderCurve
 from spidermatch.ilp import IlpModel, restrict_columns
 from spidermatch.product_graph import ProductGraph
-from spidermatch.solve.connectivity import connectivity_cuts, detached_components
+from spidermatch.solve.connectivity import connectivity_cuts, detached_components, two_cycle_components
 from spidermatch.solve.fixing import DualBound, dual_bound
 from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
 
@@ -40,11 +43,15 @@ MAX_CUT_ROUNDS = 100
 
 @dataclass
 class CutPool:
-    """Connectivity cuts found so far, in full-model columns (shared between sub-solves)."""
+    """Connectivity cuts found so far, in full-model columns (shared between sub-solves).
+
+    ``two_cycles`` holds the product vertex pairs whose 2-cycle cuts are already in the pool.
+    """
 
     rows: sp.csr_matrix | None = None
     lower: np.ndarray | None = None
     upper: np.ndarray | None = None
+    two_cycles: set = field(default_factory=set)
 
     def add(self, rows: sp.csr_matrix, lower: np.ndarray, upper: np.ndarray) -> None:
         """Remember new cut rows."""
@@ -55,6 +62,19 @@ class CutPool:
             self.lower = np.concatenate([self.lower, lower])
             self.upper = np.concatenate([self.upper, upper])
 
+    def add_two_cycle_cuts(self, graph: ProductGraph, layers: np.ndarray, columns: np.ndarray) -> int:
+        """Add the cuts of every 2-cycle among ``columns`` in ``layers`` not yet in the pool.
+
+        Returns the number of rows added.
+        """
+        pairs = [p for p in two_cycle_components(graph, layers, columns) if tuple(p) not in self.two_cycles]
+        if not pairs:
+            return 0
+        self.two_cycles.update(tuple(p) for p in pairs)
+        rows, lower, upper = connectivity_cuts(graph, pairs)
+        self.add(rows, lower, upper)
+        return rows.shape[0]
+
 
 def expand(x_sub: np.ndarray | None, columns: np.ndarray | None, n_vars: int) -> np.ndarray | None:
     """A sub-model solution (k,) as a full-model vector (n,), zeros elsewhere."""
@@ -63,6 +83,21 @@ def expand(x_sub: np.ndarray | None, columns: np.ndarray | None, n_vars: int) ->
     x = np.zeros(n_vars)
     x[columns] = x_sub
     return x
+
+
+def cheapest_connected(
+    graph: ProductGraph, session: HighsSession, columns: np.ndarray | None, n_vars: int
+) -> np.ndarray | None:
+    """The cheapest improving solution of ``session`` that is one closed walk, as a full vector (n,).
+
+    Such a solution satisfies every connectivity cut, so it stays feasible when cuts are
+    added and can restart the next run of the session as its incumbent.
+    """
+    for _, x_sub in sorted(session.improving, key=lambda found: found[0]):
+        x = np.round(expand(x_sub, columns, n_vars))
+        if not detached_components(graph, x):
+            return x
+    return None
 
 
 def solve_with_cuts(
@@ -137,6 +172,12 @@ def solve_with_cuts(
         pool.add(rows, lower, upper)
         add_cuts(rows, lower, upper)
         rounds = round_number
+        connected = cheapest_connected(graph, session, columns, model.n_vars)
+        if connected is not None:
+            logger.info(
+                "restarting from the best connected solution found so far, %.6g", model.costs @ connected
+            )
+            session.set_solution(connected if columns is None else connected[columns])
         result = session.run()  # the session gives each run only the time left
     x = expand(result.x, columns, model.n_vars)
     return replace(result, x=x, wall_time=time.perf_counter() - start, cut_rounds=rounds)
@@ -156,6 +197,7 @@ def solve_plain(
 LP_EXTRA = {"solver": "simplex", "simplex_strategy": 1}  # dual simplex: ~5x faster here than IPM
 SEED_GAP = 0.01  # first restricted MIP: columns within 1 % of the LP bound in reduced cost
 SEED_FRACTION = 0.01  # ... and at least this fraction of all columns
+SEED_MIP_GAP = 0.01  # a restricted MIP run only for an incumbent stops at this gap
 MAX_PHASES = 4
 
 
@@ -236,11 +278,22 @@ def solve_reduced_cost_fixing(
             model.n_vars, model.n_rows, model.nnz, "LP relaxation infeasible",
         )  # fmt: skip
     pool = CutPool()
+    intersection_layers = np.flatnonzero(curve.is_intersection_layer)
     columns = seed_columns(lp, 1.0)
-    incumbent, result, scale, sub_certified = None, None, 1.0, False
+    incumbent, result, scale, certified = None, None, 1.0, False
     for phase in range(1, MAX_PHASES + 1):
-        logger.info("rcfix phase %d: MIP over %d of %d columns", phase, columns.size, model.n_vars)
-        result = solve_with_cuts(model, graph, remaining(options, start), columns, incumbent, pool)
+        gap = options.mip_rel_gap if incumbent is not None else max(SEED_MIP_GAP, options.mip_rel_gap)
+        logger.info(
+            "rcfix phase %d: MIP over %d of %d columns, relative gap %.2g",
+            phase,
+            columns.size,
+            model.n_vars,
+            gap,
+        )
+        n_cuts = pool.add_two_cycle_cuts(graph, intersection_layers, columns)
+        logger.info("rcfix phase %d: %d connectivity cuts for 2-cycles added up front", phase, n_cuts)
+        phase_options = replace(remaining(options, start), mip_rel_gap=gap)
+        result = solve_with_cuts(model, graph, phase_options, columns, incumbent, pool)
         if result.status == "infeasible":
             if columns.size == model.n_vars:
                 break
@@ -252,22 +305,21 @@ def solve_reduced_cost_fixing(
             break
         incumbent = result.x
         outside = lp.dual.bound_outside(columns)
-        sub_certified = result.status == "optimal" and outside >= result.bound
+        # HiGHS's certificate for the sub-model holds for the full model if nothing outside is cheaper
+        certified = (
+            result.status == "optimal"
+            and outside >= result.bound
+            and (gap == options.mip_rel_gap or result.gap <= options.mip_rel_gap)
+        )
         bound = min(result.bound, outside)
         result = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
         logger.info(
             "rcfix phase %d: objective %.6g, bound for the full model %.6g", phase, result.objective, bound
         )
-        if sub_certified:
-            break  # HiGHS's certificate for the sub-model holds for the full model
-        if result.status != "optimal":  # time limit inside the phase
-            result = replace(result, status="feasible")
-            break
-        survivors = lp.dual.surviving_columns(result.objective)
-        if np.isin(survivors, columns).all():
-            break  # nothing outside can beat the incumbent; bound is already global
-        columns = np.union1d(columns, survivors)
-    if result.status == "optimal" and not sub_certified:
+        if certified or result.status != "optimal":
+            break  # certified for the full model, or the time limit stopped the phase
+        columns = np.union1d(columns, lp.dual.surviving_columns(result.objective))
+    if result.status == "optimal" and not certified:
         result = replace(result, status="feasible", message="gap not closed within the rcfix phases")
     return replace(result, wall_time=time.perf_counter() - start, n_vars=model.n_vars)
 
