@@ -197,7 +197,7 @@ def solve_plain(
 LP_EXTRA = {"solver": "simplex", "simplex_strategy": 1}  # dual simplex: ~5x faster here than IPM
 SEED_GAP = 0.01  # first restricted MIP: columns within 1 % of the LP bound in reduced cost
 SEED_FRACTION = 0.01  # ... and at least this fraction of all columns
-SEED_MIP_GAP = 0.01  # a restricted MIP run only for an incumbent stops at this gap
+SEED_MIP_GAP = 0.01  # the first restricted MIP is run only for an incumbent: it stops at this gap
 MAX_PHASES = 4
 
 
@@ -282,7 +282,7 @@ def solve_reduced_cost_fixing(
     columns = seed_columns(lp, 1.0)
     incumbent, result, scale, certified = None, None, 1.0, False
     for phase in range(1, MAX_PHASES + 1):
-        gap = options.mip_rel_gap if incumbent is not None else max(SEED_MIP_GAP, options.mip_rel_gap)
+        gap = max(SEED_MIP_GAP, options.mip_rel_gap) if phase == 1 else options.mip_rel_gap
         logger.info(
             "rcfix phase %d: MIP over %d of %d columns, relative gap %.2g",
             phase,
