@@ -1,3 +1,5 @@
+import math
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -288,3 +290,18 @@ def test_session_records_improving_solutions_and_restart_skips_detached_ones():
     assert (
         cheapest_connected(graph, SimpleNamespace(improving=found.improving[1:]), None, graph.n_edges) is None
     )
+
+
+def test_reported_mip_bound_is_only_what_the_gap_tolerance_proves():
+    from spidermatch.solve.highs import certified_mip_bound
+
+    # HiGHS reports the incumbent as its dual bound once it has pruned everything within the gap
+    assert certified_mip_bound(2.0, 2.0, 1e-4) == pytest.approx(2.0 * (1 - 1e-4))
+    assert certified_mip_bound(1.5, 2.0, 1e-4) == 1.5
+    assert certified_mip_bound(1.5, math.inf, 1e-4) == 1.5  # no incumbent, nothing pruned by the gap
+    curve, graph, model = creature_instance(24, seed=3)
+    exact = solve_model(model, SolverOptions(mip_rel_gap=0.0))
+    loose = solve_model(model, SolverOptions(mip_rel_gap=0.2))
+    assert loose.status == "optimal"  # "within 20 %"
+    assert loose.bound <= exact.objective + 1e-12
+    assert loose.bound <= loose.objective * (1 - 0.2) * (1 + 1e-12)

@@ -125,12 +125,26 @@ def relative_gap(objective: float, bound: float) -> float:
     return max(objective - bound, 0.0) / max(abs(objective), 1e-300)
 
 
+def certified_mip_bound(dual_bound: float, incumbent: float, rel_gap: float) -> float:
+    """A lower bound that HiGHS's branch and bound really proves.
+
+    HiGHS prunes every node whose bound is within the relative gap of the incumbent
+    and, once none is left, reports the incumbent itself as its dual bound. Only
+    ``incumbent - rel_gap * |incumbent|`` is proven for what was pruned, so the bound
+    is the smaller of the two (the reported one alone when there is no incumbent).
+    """
+    if not math.isfinite(incumbent):
+        return dual_bound
+    return min(dual_bound, incumbent - rel_gap * abs(incumbent))
+
+
 def _configure(highs, options: SolverOptions) -> None:
     global _PROCESS_THREADS
     highs.setOptionValue("output_flag", bool(options.log))
     if math.isfinite(options.time_limit):
         highs.setOptionValue("time_limit", float(options.time_limit))
     highs.setOptionValue("mip_rel_gap", float(options.mip_rel_gap))
+    highs.setOptionValue("mip_abs_gap", 0.0)  # the gap is relative only (HiGHS's default adds 1e-6 absolute)
     highs.setOptionValue("presolve", options.presolve)
     if _PROCESS_THREADS is None:
         _PROCESS_THREADS = int(options.threads)
@@ -283,7 +297,10 @@ def _read_result(session: HighsSession, wall: float) -> SolveResult:
     if x is not None and not relax:
         x = np.rint(np.clip(x, 0.0, 1.0))
     objective = float(info.objective_function_value) if has_solution else math.inf
-    bound = objective if relax and status == _STATUS.kOptimal else float(info.mip_dual_bound)
+    if relax:
+        bound = objective if status == _STATUS.kOptimal else -math.inf
+    else:
+        bound = certified_mip_bound(float(info.mip_dual_bound), objective, session.options.mip_rel_gap)
     if status == _STATUS.kOptimal and has_solution:
         kind = "optimal"
     elif status in (_STATUS.kInfeasible, _STATUS.kUnboundedOrInfeasible):
