@@ -305,3 +305,21 @@ def test_reported_mip_bound_is_only_what_the_gap_tolerance_proves():
     assert loose.status == "optimal"  # "within 20 %"
     assert loose.bound <= exact.objective + 1e-12
     assert loose.bound <= loose.objective * (1 - 0.2) * (1 + 1e-12)
+
+
+def test_connectivity_cuts_keep_a_closed_walk_that_revisits_a_vertex_within_a_layer():
+    """A walk may go a -> b -> a inside one layer (the model allows it, e.g. to pad PES);
+    cuts built for the node set {a, b} must not cut it off."""
+    from spidermatch.solve.connectivity import connectivity_cuts, detached_components, two_cycle_components
+
+    square = np.array([[0, 1], [1, 2], [2, 3], [0, 3], [0, 2]])
+    curve, graph, _ = instance([0, 1, 0, 2], square, 4, 0)
+    walk = [edge_id(graph, 0, 0, 1, INTRA), edge_id(graph, 0, 1, 0, INTRA)]
+    walk += [edge_id(graph, layer, 0, 0, STAY) for layer in range(4)]
+    x = np.zeros(graph.n_edges)
+    x[walk] = 1
+    assert detached_components(graph, x) == []  # one closed walk
+    pair = two_cycle_components(graph, np.array([0]), np.array(walk))
+    assert [p.tolist() for p in pair] == [[0, 1]]
+    rows, lower, _ = connectivity_cuts(graph, pair)
+    assert (rows @ x >= lower).all()

@@ -3,13 +3,17 @@
 The ILP of method.md admits, besides the path through all layers, detached
 cycles of intra-layer edges: in a self-intersection layer they can pad the
 out-flows that (PES) compares, which ANS does not count. A single closed walk
-never has them, so for every node set S inside one layer and every v in S
+never has them, so for every node set S inside one layer and every intra edge e
+with both ends in S
 
-    sum_{e leaving S} x_e  -  sum_{e leaving v} x_e  >=  0            (GSEC)
+    sum_{f leaving S} x_f  -  x_e  >=  0
 
-holds for every single closed walk (a walk that visits v must leave S again,
-since it passes through every layer). The cuts are added lazily, only for the
-detached cycles a solution actually has.
+holds for every single closed walk: a walk that uses e must leave S afterwards,
+since its stretch in this layer ends with the one edge to the next layer. (The
+node form ``out(S) - out(v) >= 0`` is *not* valid here: a walk may pass through v
+twice in one layer, a -> b -> a, and then out(v) = 2 > out(S) = 1.) The cuts are
+added lazily, only for the detached cycles a solution actually has, and up front
+for 2-cycles (:func:`two_cycle_components`).
 """
 
 from __future__ import annotations
@@ -52,7 +56,7 @@ def detached_components(graph: ProductGraph, x: np.ndarray) -> list[np.ndarray]:
 def connectivity_cuts(
     graph: ProductGraph, components: list[np.ndarray]
 ) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
-    """GSEC rows (one per node of every component) separating the given detached components.
+    """Rows cutting off the given detached components (one per intra edge inside each).
 
     Returns
     -------
@@ -71,13 +75,12 @@ def connectivity_cuts(
         inside = np.zeros(graph.n_target, dtype=bool)
         inside[members] = True
         entries = np.concatenate([order[starts[y] : starts[y + 1]] for y in members])
-        leaving = entries[(graph.block_kind[entries] != INTRA) | ~inside[graph.block_dst[entries]]]
-        for y in members:
-            own = order[starts[y] : starts[y + 1]]
-            cols = np.concatenate([leaving, own]) + layer * graph.block_size
-            row_ids.append(np.full(cols.size, n_rows))
-            col_ids.append(cols)
-            values.append(np.concatenate([np.ones(leaving.size), -np.ones(own.size)]))
+        stays_inside = (graph.block_kind[entries] == INTRA) & inside[graph.block_dst[entries]]
+        leaving = entries[~stays_inside] + layer * graph.block_size
+        for edge in entries[stays_inside] + layer * graph.block_size:
+            row_ids.append(np.full(leaving.size + 1, n_rows))
+            col_ids.append(np.append(leaving, edge))
+            values.append(np.append(np.ones(leaving.size), -1.0))
             n_rows += 1
     rows = sp.coo_matrix(
         (np.concatenate(values), (np.concatenate(row_ids), np.concatenate(col_ids))),
