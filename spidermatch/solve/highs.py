@@ -18,6 +18,7 @@ from spidermatch.ilp import IlpModel
 
 logger = logging.getLogger(__name__)
 
+KEEP_IMPROVING = 16  # improving solutions a session keeps (a full-model vector is 30 MB at 1000 faces)
 _PROCESS_THREADS: int | None = None  # HiGHS fixes its thread pool at the first solve of a process
 _STATUS = highspy.HighsModelStatus
 _STOPPED = {
@@ -196,8 +197,9 @@ class HighsSession:
     Attributes
     ----------
     improving : list of (float, np.ndarray)
-        Every improving solution HiGHS reported during the MIP runs of this session, as
-        (objective, x of shape (n,)), oldest first. Lazy rows added later may cut some off.
+        The last ``KEEP_IMPROVING`` improving solutions HiGHS reported during the MIP runs of
+        this session, as (objective, x of shape (n,)), oldest first. Lazy rows added later
+        may cut some off.
 
     """
 
@@ -221,6 +223,7 @@ class HighsSession:
         x = np.array(data_out.mip_solution, dtype=np.float64)
         if x.shape == (self.n_vars,):
             self.improving.append((float(data_out.objective_function_value), x))
+            del self.improving[:-KEEP_IMPROVING]  # each is cheaper than all before it
 
     def set_solution(self, x: np.ndarray) -> None:
         """Offer a feasible 0/1 vector (n,) as a starting incumbent."""
