@@ -223,7 +223,7 @@ class HighsSession:
         x = np.array(data_out.mip_solution, dtype=np.float64)
         if x.shape == (self.n_vars,):
             self.improving.append((float(data_out.objective_function_value), x))
-            del self.improving[:-KEEP_IMPROVING]  # each is cheaper than all before it
+            del self.improving[:-KEEP_IMPROVING]  # the most recent ones (later runs may report dearer ones)
 
     def set_solution(self, x: np.ndarray) -> None:
         """Offer a feasible 0/1 vector (n,) as a starting incumbent."""
