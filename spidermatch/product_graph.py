@@ -93,6 +93,50 @@ class ProductGraph:
         return np.stack([layer, self.block_src[k], next_layer, self.block_dst[k], kind], axis=1)
 
 
+def split_layers(graph: ProductGraph, x: np.ndarray, tolerance: float = 1e-6) -> np.ndarray:
+    """Layers whose crossing to the next layer is shared by more than one edge.
+
+    An integer solution crosses every layer boundary on exactly one inter or stay edge;
+    an LP solution that mixes several paths spreads the crossing over several edges.
+
+    Parameters
+    ----------
+    graph : ProductGraph
+    x : np.ndarray, shape (|E_P|,)
+        Edge values, e.g. an LP solution.
+    tolerance : float
+        Values at or below this count as zero.
+
+    Returns
+    -------
+    np.ndarray, shape (L,), bool
+        True for layer l if more than one edge from layer l to layer l+1 carries flow.
+
+    """
+    crossing = graph.block_kind != INTRA
+    per_layer = np.asarray(x).reshape(graph.n_layers, graph.block_size)[:, crossing]
+    return (per_layer > tolerance).sum(axis=1) > 1
+
+
+def cyclic_runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """Maximal runs of True in a cyclic boolean sequence, as (start, length) pairs.
+
+    Sorted by start. A run that wraps from the end to the start is reported once,
+    starting at its first position before the wrap. All True gives one run of the full length.
+    """
+    flags = np.asarray(flags, dtype=bool)
+    n = flags.size
+    if flags.all():
+        return [(0, n)]
+    if not flags.any():
+        return []
+    shift = int(np.flatnonzero(~flags)[-1]) + 1  # start right after the last False
+    rolled = np.roll(flags, -shift)
+    edges = np.diff(np.concatenate([[0], rolled.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return sorted((int((start + shift) % n), int(stop - start)) for start, stop in zip(starts, stops))
+
+
 def build_product_graph(n_layers: int, n_target: int, target_edges: np.ndarray) -> ProductGraph:
     """Product graph of a cyclic curve with ``n_layers`` positions and a target graph.
 

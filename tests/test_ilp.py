@@ -8,7 +8,7 @@ from spidermatch.correspondence import active_edges, check_solution, extract_pat
 from spidermatch.curve import SpiderCurve, spider_curve
 from spidermatch.ilp import ConstraintBlock, IlpModel, build_model, cyc_block, stack_blocks
 from spidermatch.pipeline import InfeasibleError, MatchResult
-from spidermatch.product_graph import INTER, INTRA, STAY, build_product_graph
+from spidermatch.product_graph import INTER, INTRA, STAY, build_product_graph, cyclic_runs, split_layers
 from spidermatch.remesh import decimate
 from spidermatch.solve.highs import SolverOptions, solve_model
 from spidermatch.solve.strategies import solve_plain, solve_with_strategy
@@ -323,3 +323,35 @@ def test_connectivity_cuts_keep_a_closed_walk_that_revisits_a_vertex_within_a_la
     assert [p.tolist() for p in pair] == [[0, 1]]
     rows, lower, _ = connectivity_cuts(graph, pair)
     assert (rows @ x >= lower).all()
+
+
+def test_split_layers_flags_exactly_the_layers_where_a_mixture_of_two_paths_crosses_differently():
+    curve, graph, _ = instance([0, 1, 2, 3], TRIANGLE, 3, 0)
+    # path A stays at target vertex 0; path B moves 0 -> 1 between layers 1 and 2, back 1 -> 0 after layer 2
+    path_a = [edge_id(graph, layer, 0, 0, STAY) for layer in range(4)]
+    path_b = [
+        edge_id(graph, 0, 0, 0, STAY),
+        edge_id(graph, 1, 0, 1, INTER),
+        edge_id(graph, 2, 1, 0, INTER),
+        edge_id(graph, 3, 0, 0, STAY),
+    ]
+    x = np.zeros(graph.n_edges)
+    x[path_a] = 1.0
+    assert not split_layers(graph, x).any()
+    x[path_a] = 0.5
+    x[path_b] += 0.5
+    assert split_layers(graph, x).tolist() == [False, True, True, False]
+    assert cyclic_runs(split_layers(graph, x)) == [(1, 2)]
+
+
+@pytest.mark.parametrize(
+    "flags, runs",
+    [
+        ([True, True, False, False, True], [(4, 3)]),
+        ([False, True, False, True, True], [(1, 1), (3, 2)]),
+        ([True, True, True], [(0, 3)]),
+        ([False, False], []),
+    ],
+)
+def test_cyclic_runs_joins_a_run_that_wraps_around(flags, runs):
+    assert cyclic_runs(np.array(flags)) == runs
