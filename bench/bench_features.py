@@ -17,18 +17,9 @@ from pathlib import Path
 
 from scipy.spatial import cKDTree
 
+from features.extractor import extractor_by_name
 from spidermatch.datasets import open_dataset
 from spidermatch.evaluate import dense_map_errors
-
-
-def make_extractor(kind: str, checkpoint: str | None):
-    if kind == "wks":
-        from features.extractor import WKSExtractor
-
-        return WKSExtractor(use_cache=False)
-    from features.learned import LearnedExtractor
-
-    return LearnedExtractor(checkpoint)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -37,12 +28,14 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--data", default="synthetic")
     parser.add_argument("--pairs", nargs="+", required=True, help="SOURCE:TARGET shape names")
-    parser.add_argument("--features", default="wks", help="wks or learned")
+    parser.add_argument("--features", default="wks", choices=("wks", "learned"))
     parser.add_argument("--checkpoint", default=None)
     parser.add_argument("--out", default="bench/results/features.json")
     args = parser.parse_args(argv)
+    if args.features == "learned" and args.checkpoint is None:
+        parser.error("--features learned needs --checkpoint PATH (a spidermatch-train best.pt)")
     dataset = open_dataset(args.data)
-    extractor = make_extractor(args.features, args.checkpoint)
+    extractor = extractor_by_name(args.features, args.checkpoint, use_cache=False)
     rows = []
     for text in args.pairs:
         a, b = text.split(":")

@@ -42,6 +42,7 @@ COLUMNS = (
 def run_instance(args: tuple) -> dict:
     data, pair, faces, strategy, features, time_limit, checkpoint, highs = args
 
+    from features.extractor import extractor_by_name
     from spidermatch.datasets import open_dataset
     from spidermatch.evaluate import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match
@@ -49,14 +50,7 @@ def run_instance(args: tuple) -> dict:
 
     dataset = open_dataset(data)
     x, y = dataset.load(pair[0]), dataset.load(pair[1])
-    if features == "wks":
-        from features.extractor import WKSExtractor
-
-        extractor = WKSExtractor()
-    else:
-        from features.learned import LearnedExtractor
-
-        extractor = LearnedExtractor(checkpoint)
+    extractor = extractor_by_name(features, checkpoint)
     feat_x, feat_y = extractor(x.mesh.centred()), extractor(y.mesh.centred())
     solver = SolverOptions(time_limit=time_limit, extra=highs)
     settings = MatchSettings(resolution=faces, strategy=strategy, solver=solver)
@@ -115,7 +109,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--pairs", nargs="+", required=True, help="SOURCE:TARGET shape names")
     parser.add_argument("--resolutions", nargs="+", type=int, default=[100, 250, 500])
     parser.add_argument("--strategies", nargs="+", default=["plain"])
-    parser.add_argument("--features", default="wks", help="wks or learned")
+    parser.add_argument("--features", default="wks", choices=("wks", "learned"))
     parser.add_argument("--checkpoint", default=None)
     parser.add_argument("--time-limit", type=float, default=600.0)
     parser.add_argument("--out", default="bench/results/solve.json")
@@ -127,6 +121,8 @@ def main(argv: list[str] | None = None) -> None:
         help="extra HiGHS options for every solve, e.g. mip_pscost_minreliable=0",
     )
     args = parser.parse_args(argv)
+    if args.features == "learned" and args.checkpoint is None:
+        parser.error("--features learned needs --checkpoint PATH (a spidermatch-train best.pt)")
     highs = dict(highs_option(text) for text in args.highs)
     rows = []
     out = Path(args.out)

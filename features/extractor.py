@@ -47,3 +47,27 @@ class WKSExtractor:
         """Return WKS descriptors of shape (V, n_descr)."""
         ops = cached_operators(mesh, k=self.n_eig, use_cache=self.use_cache)
         return wave_kernel_signature(ops.evals, ops.evecs, self.n_descr)
+
+
+def extractor_by_name(kind: str, checkpoint: str | None = None, use_cache: bool = True) -> FeatureExtractor:
+    """The extractor benchmarks and scripts ask for by name: ``"wks"`` or ``"learned"``.
+
+    Parameters
+    ----------
+    kind : str
+        "wks" (no checkpoint needed) or "learned" (needs ``checkpoint``).
+    checkpoint : str, optional
+        Path of a trained network (``spidermatch-train``'s ``best.pt``).
+    use_cache : bool
+        Whether WKS may reuse cached Laplacian eigenpairs.
+
+    """
+    if kind == "wks":
+        return WKSExtractor(use_cache=use_cache)
+    if kind != "learned":
+        raise ValueError(f"unknown features {kind!r}; choose 'wks' or 'learned'")
+    if checkpoint is None:
+        raise ValueError("learned features need a checkpoint: give --checkpoint PATH (see spidermatch-train)")
+    from features.learned import LearnedExtractor  # torch only when asked for
+
+    return LearnedExtractor(checkpoint)

@@ -1,5 +1,7 @@
 import numpy as np
+import pytest
 
+from features.extractor import WKSExtractor, extractor_by_name
 from features.wks import wave_kernel_signature
 from spidermatch.geodesics import GeodesicDistances
 from spidermatch.mesh import Mesh
@@ -97,3 +99,11 @@ def test_geodesics_on_sphere_match_great_circles(rng):
     # heat method on a 2562-vertex icosphere: mean error under 2 %, worst under 6 % of pi
     assert np.mean(np.abs(distances - exact)) < 0.02 * np.pi
     assert np.max(np.abs(distances - exact)) < 0.06 * np.pi
+
+
+def test_extractor_by_name_builds_wks_and_names_what_is_missing():
+    assert isinstance(extractor_by_name("wks"), WKSExtractor)
+    with pytest.raises(ValueError, match="checkpoint"):
+        extractor_by_name("learned")
+    with pytest.raises(ValueError, match="unknown features 'shot'"):
+        extractor_by_name("shot")
