@@ -50,6 +50,8 @@ def family_row(curve, graph, model, families, mip: bool, options) -> dict:
     sub = build_model(graph, curve, model.costs, families)
     start = time.perf_counter()
     lp = solve_lp(sub, options)
+    if lp is None:
+        return {"families": "+".join(families), "status": "infeasible"}
     split = split_layers(graph, lp.x)
     row = {
         "families": "+".join(families),
