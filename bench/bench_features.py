@@ -15,6 +15,7 @@ import sys
 import time
 from pathlib import Path
 
+from feature_options import add_feature_options, parse_checked
 from scipy.spatial import cKDTree
 
 from features.extractor import extractor_by_name
@@ -28,12 +29,9 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--data", default="synthetic")
     parser.add_argument("--pairs", nargs="+", required=True, help="SOURCE:TARGET shape names")
-    parser.add_argument("--features", default="wks", choices=("wks", "learned"))
-    parser.add_argument("--checkpoint", default=None)
+    add_feature_options(parser)
     parser.add_argument("--out", default="bench/results/features.json")
-    args = parser.parse_args(argv)
-    if args.features == "learned" and args.checkpoint is None:
-        parser.error("--features learned needs --checkpoint PATH (a spidermatch-train best.pt)")
+    args = parse_checked(parser, argv)
     dataset = open_dataset(args.data)
     extractor = extractor_by_name(args.features, args.checkpoint, use_cache=False)
     rows = []

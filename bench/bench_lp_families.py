@@ -20,6 +20,8 @@ import sys
 import time
 from pathlib import Path
 
+from feature_options import add_feature_options, load_pair_with_features, parse_checked
+
 SUBSETS = (("CYC", "CON"), ("CYC", "CON", "PES"), ("CYC", "CON", "ANS"), ("CYC", "CON", "PES", "ANS"))
 COLUMNS = ("pair", "families", "lp_value", "fractional", "split_layers", "longest_split_run", "lp_s",
            "optimum", "status", "gap")  # fmt: skip
@@ -27,15 +29,9 @@ COLUMNS = ("pair", "families", "lp_value", "fractional", "split_layers", "longes
 
 def prepare_pair(data: str, pair: str, faces: int, features: str, checkpoint: str | None):
     """Curve, product graph and full model of one FAUST_r-style pair."""
-    from features.extractor import extractor_by_name
-    from spidermatch.datasets import open_dataset
     from spidermatch.pipeline import MatchSettings, prepare
 
-    source, target = pair.split(":")
-    dataset = open_dataset(data)
-    x, y = dataset.load(source), dataset.load(target)
-    extractor = extractor_by_name(features, checkpoint)
-    feat_x, feat_y = extractor(x.mesh.centred()), extractor(y.mesh.centred())
+    x, y, feat_x, feat_y = load_pair_with_features(data, tuple(pair.split(":")), features, checkpoint)
     _, _, curve, graph, model = prepare(x.mesh, y.mesh, feat_x, feat_y, MatchSettings(resolution=faces), {})
     return curve, graph, model
 
@@ -75,14 +71,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--data", required=True, help="FAUST_r-style folder")
     parser.add_argument("--pairs", "--pair", nargs="+", required=True, help="SOURCE:TARGET shape names")
     parser.add_argument("--faces", type=int, default=250)
-    parser.add_argument("--features", default="wks", choices=("wks", "learned"))
-    parser.add_argument("--checkpoint", default=None, help="trained network for --features learned")
+    add_feature_options(parser)
     parser.add_argument("--mip", action="store_true", help="also solve each subset to optimality (rcfix)")
     parser.add_argument("--time-limit", type=float, default=600.0)
     parser.add_argument("--out", default="bench/results/lp_families.json")
-    args = parser.parse_args(argv)
-    if args.features == "learned" and args.checkpoint is None:
-        parser.error("--features learned needs --checkpoint PATH (a spidermatch-train best.pt)")
+    args = parse_checked(parser, argv)
 
     from spidermatch.solve.highs import SolverOptions
 

@@ -20,6 +20,8 @@ import sys
 import time
 from pathlib import Path
 
+from feature_options import add_feature_options, load_pair_with_features, parse_checked
+
 COLUMNS = (
     "pair",
     "faces",
@@ -42,16 +44,11 @@ COLUMNS = (
 def run_instance(args: tuple) -> dict:
     data, pair, faces, strategy, features, time_limit, checkpoint, highs = args
 
-    from features.extractor import extractor_by_name
-    from spidermatch.datasets import open_dataset
     from spidermatch.evaluate import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match
     from spidermatch.solve.highs import SolverOptions
 
-    dataset = open_dataset(data)
-    x, y = dataset.load(pair[0]), dataset.load(pair[1])
-    extractor = extractor_by_name(features, checkpoint)
-    feat_x, feat_y = extractor(x.mesh.centred()), extractor(y.mesh.centred())
+    x, y, feat_x, feat_y = load_pair_with_features(data, pair, features, checkpoint)
     solver = SolverOptions(time_limit=time_limit, extra=highs)
     settings = MatchSettings(resolution=faces, strategy=strategy, solver=solver)
     result = match(x.mesh, y.mesh, feat_x, feat_y, settings)
@@ -109,8 +106,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--pairs", nargs="+", required=True, help="SOURCE:TARGET shape names")
     parser.add_argument("--resolutions", nargs="+", type=int, default=[100, 250, 500])
     parser.add_argument("--strategies", nargs="+", default=["plain"])
-    parser.add_argument("--features", default="wks", choices=("wks", "learned"))
-    parser.add_argument("--checkpoint", default=None)
+    add_feature_options(parser)
     parser.add_argument("--time-limit", type=float, default=600.0)
     parser.add_argument("--out", default="bench/results/solve.json")
     parser.add_argument(
@@ -120,9 +116,7 @@ def main(argv: list[str] | None = None) -> None:
         metavar="NAME=VALUE",
         help="extra HiGHS options for every solve, e.g. mip_pscost_minreliable=0",
     )
-    args = parser.parse_args(argv)
-    if args.features == "learned" and args.checkpoint is None:
-        parser.error("--features learned needs --checkpoint PATH (a spidermatch-train best.pt)")
+    args = parse_checked(parser, argv)
     highs = dict(highs_option(text) for text in args.highs)
     rows = []
     out = Path(args.out)

@@ -126,10 +126,10 @@ def cyclic_runs(flags: np.ndarray) -> list[tuple[int, int]]:
     """
     flags = np.asarray(flags, dtype=bool)
     n = flags.size
+    if not flags.any():  # also the empty sequence
+        return []
     if flags.all():
         return [(0, n)]
-    if not flags.any():
-        return []
     shift = int(np.flatnonzero(~flags)[-1]) + 1  # start right after the last False
     rolled = np.roll(flags, -shift)
     edges = np.diff(np.concatenate([[0], rolled.astype(np.int8), [0]]))

@@ -351,6 +351,7 @@ def test_split_layers_flags_exactly_the_layers_where_a_mixture_of_two_paths_cros
         ([False, True, False, True, True], [(1, 1), (3, 2)]),
         ([True, True, True], [(0, 3)]),
         ([False, False], []),
+        ([], []),
     ],
 )
 def test_cyclic_runs_joins_a_run_that_wraps_around(flags, runs):

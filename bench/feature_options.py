@@ -1,0 +1,34 @@
+"""Feature options shared by the benchmark scripts: ``--features`` / ``--checkpoint`` and pair loading."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+
+def add_feature_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``--features {wks,learned}`` and ``--checkpoint PATH``."""
+    parser.add_argument("--features", default="wks", choices=("wks", "learned"))
+    parser.add_argument("--checkpoint", default=None, help="trained network for --features learned")
+
+
+def parse_checked(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
+    """Parse ``argv``; learned features without a checkpoint is a usage error, not a worker traceback."""
+    args = parser.parse_args(argv)
+    if args.features == "learned" and args.checkpoint is None:
+        parser.error("--features learned needs --checkpoint PATH (a spidermatch-train best.pt)")
+    return args
+
+
+def load_pair_with_features(data: str, pair: tuple[str, str], features: str, checkpoint: str | None):
+    """Both shapes of a dataset pair and their per-vertex features (V_X, D), (V_Y, D)."""
+    from features.extractor import extractor_by_name
+    from spidermatch.datasets import open_dataset
+
+    dataset = open_dataset(data)
+    x, y = dataset.load(pair[0]), dataset.load(pair[1])
+    extractor = extractor_by_name(features, checkpoint)
+    feat_x: np.ndarray = extractor(x.mesh.centred())
+    feat_y: np.ndarray = extractor(y.mesh.centred())
+    return x, y, feat_x, feat_y
