@@ -67,6 +67,7 @@ def run_instance(args: tuple) -> dict:
         "gap": result.solve.gap,
         "check": None if result.check is None else bool(result.check.ok),
         "geo_err": None,
+        "message": result.solve.message,  # in the files only: why a run stopped (e.g. HiGHS's time limit)
     }
     if result.low_map is not None and x.corr is not None and y.corr is not None:
         pairs = result.full_pairs
