@@ -14,11 +14,37 @@ def add_feature_options(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_checked(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
-    """Parse ``argv``; learned features without a checkpoint is a usage error, not a worker traceback."""
+    """Parse ``argv`` and check what would otherwise fail later as a traceback from a worker.
+
+    Learned features need a checkpoint, ``--data`` must open as a dataset, and every
+    ``--pairs`` entry must be ``SOURCE:TARGET`` with both shapes in it.
+    """
     args = parser.parse_args(argv)
     if args.features == "learned" and args.checkpoint is None:
         parser.error("--features learned needs --checkpoint PATH (a spidermatch-train best.pt)")
+    missing = unknown_pair_names(args.data, args.pairs)
+    if missing:
+        parser.error(missing)
     return args
+
+
+def unknown_pair_names(data: str, pairs: list[str]) -> str | None:
+    """Why ``pairs`` (``SOURCE:TARGET`` texts) cannot be loaded from ``data``, or None if they can."""
+    from spidermatch.datasets import DatasetError, open_dataset
+
+    try:
+        dataset = open_dataset(data)
+    except DatasetError as error:
+        return f"--data: {error}"
+    for text in pairs:
+        names = text.split(":")
+        if len(names) != 2 or not all(names):
+            return f"--pairs: expected SOURCE:TARGET, got {text!r}"
+        absent = [name for name in names if name not in dataset.names]
+        if absent:
+            shown = ", ".join(dataset.names[:4]) + (", ..." if len(dataset.names) > 4 else "")
+            return f"--pairs {text}: {data} has no shape named {absent[0]!r} (it has {shown})"
+    return None
 
 
 def load_pair_with_features(data: str, pair: tuple[str, str], features: str, checkpoint: str | None):
