@@ -1,4 +1,4 @@
-"""Feature options shared by the benchmark scripts: ``--features`` / ``--checkpoint`` and pair loading."""
+"""Options shared by the benchmark scripts: ``--features`` / ``--checkpoint``, their checks, pair loading."""
 
 from __future__ import annotations
 
@@ -22,13 +22,13 @@ def parse_checked(parser: argparse.ArgumentParser, argv: list[str] | None) -> ar
     args = parser.parse_args(argv)
     if args.features == "learned" and args.checkpoint is None:
         parser.error("--features learned needs --checkpoint PATH (a spidermatch-train best.pt)")
-    missing = unknown_pair_names(args.data, args.pairs)
-    if missing:
-        parser.error(missing)
+    problem = pair_problem(args.data, args.pairs)
+    if problem:
+        parser.error(problem)
     return args
 
 
-def unknown_pair_names(data: str, pairs: list[str]) -> str | None:
+def pair_problem(data: str, pairs: list[str]) -> str | None:
     """Why ``pairs`` (``SOURCE:TARGET`` texts) cannot be loaded from ``data``, or None if they can."""
     from spidermatch.datasets import DatasetError, open_dataset
 

@@ -8,11 +8,11 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
-from feature_options import add_feature_options, parse_checked, unknown_pair_names  # noqa: E402
+from feature_options import add_feature_options, pair_problem, parse_checked  # noqa: E402
 
 
 def test_known_synthetic_pair_passes():
-    assert unknown_pair_names("synthetic", ["creature_000:creature_001"]) is None
+    assert pair_problem("synthetic", ["creature_000:creature_001"]) is None
 
 
 @pytest.mark.parametrize(
@@ -21,12 +21,12 @@ def test_known_synthetic_pair_passes():
      ("creature_000:nobody", "no shape named 'nobody'")],
 )  # fmt: skip
 def test_bad_pairs_are_named(pair, expected):
-    message = unknown_pair_names("synthetic", ["creature_000:creature_001", pair])
+    message = pair_problem("synthetic", ["creature_000:creature_001", pair])
     assert expected in message and pair in message
 
 
 def test_missing_data_folder_is_named(tmp_path):
-    message = unknown_pair_names(str(tmp_path / "absent"), ["a:b"])
+    message = pair_problem(str(tmp_path / "absent"), ["a:b"])
     assert message.startswith("--data:") and "absent" in message
 
 
