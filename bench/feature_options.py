@@ -30,20 +30,19 @@ def parse_checked(parser: argparse.ArgumentParser, argv: list[str] | None) -> ar
 
 def pair_problem(data: str, pairs: list[str]) -> str | None:
     """Why ``pairs`` (``SOURCE:TARGET`` texts) cannot be loaded from ``data``, or None if they can."""
-    from spidermatch.datasets import DatasetError, open_dataset
+    from spidermatch.datasets import DatasetError, checked_pair, open_dataset
 
     try:
         dataset = open_dataset(data)
     except DatasetError as error:
         return f"--data: {error}"
+    known = set(dataset.names)
     for text in pairs:
-        names = text.split(":")
-        if len(names) != 2 or not all(names):
-            return f"--pairs: expected SOURCE:TARGET, got {text!r}"
-        absent = [name for name in names if name not in dataset.names]
-        if absent:
+        try:
+            checked_pair(text.split(":"), known, f"--pairs {text}")
+        except DatasetError as error:
             shown = ", ".join(dataset.names[:4]) + (", ..." if len(dataset.names) > 4 else "")
-            return f"--pairs {text}: {data} has no shape named {absent[0]!r} (it has {shown})"
+            return f"{error} ({data} has {shown})"
     return None
 
 

@@ -61,14 +61,25 @@ def read_pairs_file(path: str | os.PathLike, names: list[str]) -> list[tuple[str
         line = line.split("#", 1)[0].replace(",", " ").strip()
         if not line:
             continue
-        fields = line.split()
-        if len(fields) != 2:
-            raise DatasetError(f"{path}:{number}: expected two shape names, got {line!r}")
-        missing = [name for name in fields if name not in known]
-        if missing:
-            raise DatasetError(f"{path}:{number}: unknown shape {missing[0]!r}")
-        pairs.append((fields[0], fields[1]))
+        pairs.append(checked_pair(line.split(), known, f"{path}:{number}"))
     return pairs
+
+
+def checked_pair(fields: list[str], known: set[str], where: str) -> tuple[str, str]:
+    """The (source, target) pair that ``fields`` names.
+
+    Raises
+    ------
+    DatasetError
+        Starting with ``where``, if ``fields`` are not two non-empty names or one is not in ``known``.
+
+    """
+    if len(fields) != 2 or not all(fields):
+        raise DatasetError(f"{where}: expected two shape names, got {' '.join(fields)!r}")
+    missing = [name for name in fields if name not in known]
+    if missing:
+        raise DatasetError(f"{where}: unknown shape {missing[0]!r}")
+    return fields[0], fields[1]
 
 
 class ShapeFolder:

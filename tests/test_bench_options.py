@@ -17,8 +17,8 @@ def test_known_synthetic_pair_passes():
 
 @pytest.mark.parametrize(
     "pair, expected",
-    [("creature_000", "expected SOURCE:TARGET"), ("creature_000:", "expected SOURCE:TARGET"),
-     ("creature_000:nobody", "no shape named 'nobody'")],
+    [("creature_000", "expected two shape names"), ("creature_000:", "expected two shape names"),
+     ("creature_000:nobody", "unknown shape 'nobody'")],
 )  # fmt: skip
 def test_bad_pairs_are_named(pair, expected):
     message = pair_problem("synthetic", ["creature_000:creature_001", pair])
@@ -37,7 +37,7 @@ def test_parse_checked_exits_with_usage_error(capsys):
     add_feature_options(parser)
     with pytest.raises(SystemExit):
         parse_checked(parser, ["--pairs", "creature_000:ghost"])
-    assert "no shape named 'ghost'" in capsys.readouterr().err
+    assert "unknown shape 'ghost'" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         parse_checked(parser, ["--pairs", "creature_000:creature_001", "--features", "learned"])
     assert "--checkpoint" in capsys.readouterr().err
