@@ -3,7 +3,8 @@
 Outputs in the Hydra run directory: ``matches.csv``, ``result.json`` and
 ``correspondence.png``. ``result.json`` is written even when a stage fails, with the
 reason. Exit codes: 0 certified (or time-limited with incumbent), 2 bad input,
-3 infeasible, 4 no solution in time, 5 solver failure.
+3 infeasible, 4 no solution in time, 5 solver failure, 6 an output not written,
+130/143 interrupted by SIGINT/SIGTERM (see :mod:`spidermatch.guard`).
 """
 
 from __future__ import annotations
@@ -12,13 +13,13 @@ import json
 import logging
 import os
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from spidermatch import guard
 from spidermatch.costs import RobustLoss
 from spidermatch.datasets import DatasetError, SyntheticShapes
 from spidermatch.evaluate import sparse_map_errors
@@ -26,10 +27,12 @@ from spidermatch.io import load_mesh, read_vts
 from spidermatch.mesh import Mesh, MeshError
 from spidermatch.pipeline import MatchError, MatchResult, MatchSettings, match
 from spidermatch.solve.highs import SolverOptions
+from spidermatch.validate import check_ground_truth, check_options, check_same_topology, coarseness_warnings
 
 logger = logging.getLogger("spidermatch.match")
 
-EXIT_BAD_INPUT = 2
+EXIT_BAD_INPUT = guard.EXIT_BAD_INPUT
+INPUT_ERRORS = (MeshError, DatasetError, ValueError, FileNotFoundError)
 
 
 @dataclass(frozen=True)
@@ -54,7 +57,8 @@ def load_inputs(cfg) -> MatchInputs:
         target_corr = read_vts(cfg.target_corr, target.n_verts) if cfg.target_corr else None
         if (source_corr is None) != (target_corr is None):
             raise DatasetError("give both source_corr= and target_corr= to evaluate against ground truth")
-        resolution = cfg.resolution or 1000
+        check_ground_truth(source_corr, target_corr, cfg.source_corr, cfg.target_corr)
+        resolution = 1000 if cfg.resolution is None else cfg.resolution
         return MatchInputs(
             source, target, source_corr, target_corr, resolution, f"{cfg.source} -> {cfg.target}"
         )
@@ -62,7 +66,7 @@ def load_inputs(cfg) -> MatchInputs:
     shapes = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.source_seed)
     other = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.target_seed)
     x, y = shapes.load(shapes.names[0]), other.load(other.names[0])
-    resolution = cfg.resolution or data.resolution
+    resolution = data.resolution if cfg.resolution is None else cfg.resolution
     return MatchInputs(
         x.mesh, y.mesh, x.corr, y.corr, resolution, f"built-in synthetic pair {x.name} -> {y.name}"
     )
@@ -125,11 +129,7 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
     return np.asarray(feat_x), np.asarray(feat_y), name
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file, so that no half file is ever left."""
-    with tempfile.NamedTemporaryFile("w", dir=path.parent, delete=False, suffix=".tmp") as handle:
-        handle.write(text)
-    os.replace(handle.name, path)
+write_atomic = guard.write_atomic  # atomic, umask-derived mode; OutputError names the path
 
 
 def write_matches(path: Path, pairs: np.ndarray) -> None:
@@ -163,8 +163,12 @@ def run_match(cfg, output_dir: Path) -> int:
     return run_pair(cfg, output_dir, lambda: load_inputs(cfg), lambda inputs: compute_features(cfg, inputs))
 
 
-def run_pair(cfg, output_dir: Path, get_inputs, get_features) -> int:
+def run_pair(cfg, output_dir: Path, get_inputs, get_features, record: dict | None = None) -> int:
     """Load a pair, match it and write its outputs; ``result.json`` is written whatever happens.
+
+    Options are validated first (:func:`spidermatch.validate.check_options`). A signal,
+    bad input or an unwritable output ends the run with a final ``result.json`` (status
+    ``interrupted``, ``input_error`` or ``output_error``; see :mod:`spidermatch.guard`).
 
     Parameters
     ----------
@@ -173,31 +177,66 @@ def run_pair(cfg, output_dir: Path, get_inputs, get_features) -> int:
     output_dir : Path
     get_inputs : callable () -> MatchInputs
     get_features : callable (MatchInputs) -> (features_x (V_X, D), features_y (V_Y, D), name)
+    record : dict, optional
+        Extra entries for ``result.json`` (e.g. the eval's settings hash).
 
     Returns
     -------
     int
         The exit code (0 on success).
     """
-    output_dir.mkdir(parents=True, exist_ok=True)
-    report: dict = {"status": "started", "output_dir": str(output_dir)}
+    report: dict = {"status": "started", "output_dir": str(output_dir), **(record or {})}
+    result_path = output_dir / "result.json" if cfg.output.result_json else None
     started = time.perf_counter()
-    try:
-        return _run_stages(cfg, output_dir, report, get_inputs, get_features)
-    except (MeshError, DatasetError, ValueError, FileNotFoundError) as error:
-        logger.error("%s", error)
-        report.update(status="input_error", error=str(error), exit_code=EXIT_BAD_INPUT)
-        return EXIT_BAD_INPUT
-    finally:
+    with guard.signals_handled():
+        try:
+            _start_run(output_dir, result_path, report)
+            check_options(cfg)
+            code = _run_stages(cfg, output_dir, report, get_inputs, get_features)
+        except (guard.RunInterrupted, OSError, *INPUT_ERRORS) as error:
+            status, code, message, known = guard.final_status(error, INPUT_ERRORS)
+            (logger.warning if status == "interrupted" else logger.error)("%s", message)
+            report.update(known)
+            report.update(status=status, proven_optimal=False, error=message, exit_code=code)
         report["total_time_s"] = round(time.perf_counter() - started, 3)
-        if cfg.output.result_json:
-            write_atomic(output_dir / "result.json", json.dumps(report, indent=2) + "\n")
-            logger.info("wrote %s", output_dir / "result.json")
+        if result_path is not None:
+            if guard.write_result(result_path, report):
+                logger.info("wrote %s", result_path)
+            elif code == 0:
+                code = guard.EXIT_OUTPUT_ERROR
+    return code
+
+
+def _start_run(output_dir: Path, result_path: Path | None, report: dict) -> None:
+    """Create the run folder and replace any older ``result.json`` by a 'started' one."""
+    try:
+        output_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        message = f"{output_dir}: the run folder cannot be created ({error.strerror})"
+        raise guard.OutputError(message) from error
+    if result_path is not None:
+        write_atomic(result_path, json.dumps(report, indent=2) + "\n")
+
+
+def check_inputs(cfg, inputs: MatchInputs, report: dict) -> None:
+    """Pair checks before any work: topology of both meshes, meshes far below the resolution."""
+    if cfg.get("allow_topology_mismatch", False):
+        try:
+            check_same_topology(inputs.source, inputs.target)
+        except MeshError as error:
+            logger.warning("%s (allow_topology_mismatch=true: matching anyway)", error)
+            report.setdefault("warnings", []).append(str(error))
+    else:
+        check_same_topology(inputs.source, inputs.target)
+    warnings = coarseness_warnings((inputs.source, inputs.target), inputs.resolution)
+    if warnings:
+        report.setdefault("warnings", []).extend(warnings)
 
 
 def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -> int:
     inputs = get_inputs()
     report.update(input=inputs.description, resolution=inputs.resolution)
+    check_inputs(cfg, inputs, report)
     logger.info("matching %s at %d faces", inputs.description, inputs.resolution)
     start = time.perf_counter()
     feat_x, feat_y, feature_name = get_features(inputs)
@@ -211,10 +250,15 @@ def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -
         result.raise_for_status()
     except MatchError as error:
         logger.error("%s", error)
+        if report["status"] not in ("infeasible", "no_solution"):
+            # e.g. a solution that fails the checker: never 'optimal' next to a failure
+            report.update(solver_status=report["status"], status="solver_failure", proven_optimal=False)
         report.update(error=str(error), exit_code=error.exit_code)
         return error.exit_code
+    status = report["status"]
+    report["status"] = "writing"  # 'optimal' only once every requested output is written
     _write_matching(cfg, output_dir, result, inputs, report)
-    report["exit_code"] = 0
+    report.update(status=status, exit_code=0)
     return 0
 
 
@@ -228,7 +272,8 @@ def _write_matching(cfg, output_dir: Path, result: MatchResult, inputs: MatchInp
             pairs[:, 0], pairs[:, 1], inputs.source, inputs.source_corr, inputs.target_corr, inputs.target
         )
         report["geodesic_error"] = {"mean": evaluation.mean, "n_points": int(evaluation.errors.size)}
-        np.save(output_dir / "geodesic_errors.npy", evaluation.errors)
+        with guard.atomic_path(output_dir / "geodesic_errors.npy") as tmp:
+            np.save(tmp, evaluation.errors)
         logger.info("mean geodesic error against ground truth: %.4f", evaluation.mean)
     if cfg.output.png:
         _write_pngs(output_dir, result, inputs, pairs, report)
@@ -247,20 +292,15 @@ def _write_pngs(
     """
     from spidermatch.plot import save_correspondence_png, save_curve_png
 
-    title = f"{inputs.description} | {report['status']}, gap {report.get('gap') or 0:.1e}"
-    paths = (
+    title = f"{inputs.description} | {result.solve.status}, gap {report.get('gap') or 0:.1e}"
+    with guard.atomic_path(output_dir / "correspondence.png") as tmp:
         save_correspondence_png(
-            inputs.source.centred(),
-            inputs.target.centred(),
-            pairs[:, 0],
-            pairs[:, 1],
-            output_dir / "correspondence.png",
-            title,
-        ),
-        save_curve_png(result.source.mesh, result.curve.vertices, output_dir / "spider_curve.png"),
-    )
-    for path in paths:
-        logger.info("wrote %s", path)
+            inputs.source.centred(), inputs.target.centred(), pairs[:, 0], pairs[:, 1], tmp, title
+        )
+    logger.info("wrote %s", output_dir / "correspondence.png")
+    with guard.atomic_path(output_dir / "spider_curve.png") as tmp:
+        save_curve_png(result.source.mesh, result.curve.vertices, tmp)
+    logger.info("wrote %s", output_dir / "spider_curve.png")
 
 
 class FeatureMemo:
@@ -285,53 +325,130 @@ class FeatureMemo:
         return self.of(names[0], inputs.source), self.of(names[1], inputs.target), self.name
 
 
-def run_eval(cfg, run_dir: Path) -> int:
-    """Match every selected pair of a dataset into ``run_dir``, resuming finished pairs."""
-    from tqdm.auto import tqdm
+def _eval_settings_hash(cfg) -> str:
+    """Hash of the settings that decide an eval's pair results (see :mod:`spidermatch.resume`)."""
+    from omegaconf import OmegaConf
 
-    from spidermatch.batch import finished_result, pair_dir, select_pairs, summary_row, write_summary
+    from spidermatch.resume import deciding_settings, settings_hash
+
+    plain = OmegaConf.to_container(cfg, resolve=True)
+    checkpoint = cfg.features.get("checkpoint") if "checkpoint" in cfg.features else None
+    return settings_hash(deciding_settings(plain, checkpoint))
+
+
+def _pair_input_files(dataset, source: str, target: str) -> list:
+    """Identities (size, mtime) of a pair's mesh and ground-truth files; [] for generated data."""
+    from spidermatch.resume import file_identity
+
+    if not hasattr(dataset, "mesh_path"):
+        return []
+    return [
+        file_identity(path)
+        for name in (source, target)
+        for path in (dataset.mesh_path(name), dataset.corr_path(name))
+    ]
+
+
+def _open_eval(cfg):
+    """Options, dataset, pairs and features of an eval run (bad ones raise an input error)."""
+    from spidermatch.batch import select_pairs
     from spidermatch.datasets import open_dataset
 
-    run_dir.mkdir(parents=True, exist_ok=True)
-    try:
-        options = dict(cfg.synthetic) if cfg.dataset in (None, "", "synthetic") else {}
-        dataset = open_dataset(cfg.dataset, **options)
-        pairs = select_pairs(dataset.names, dataset.pairs(cfg.pairs_file), cfg.n_pairs, cfg.pair_seed)
-        memo = FeatureMemo(cfg)
-    except (DatasetError, MeshError, ValueError) as error:
-        logger.error("%s", error)
-        return EXIT_BAD_INPUT
-    settings = {
-        "dataset": str(cfg.dataset),
-        "resolution": cfg.resolution,
-        "features": memo.name,
-        "strategy": cfg.solver.strategy,
-        "pairs": len(pairs),
-    }
-    rows = []
-    for source, target in tqdm(pairs, desc="pairs", unit="pair"):
-        folder = pair_dir(run_dir, source, target)
+    check_options(cfg)
+    options = dict(cfg.synthetic) if cfg.dataset in (None, "", "synthetic") else {}
+    dataset = open_dataset(cfg.dataset, **options)
+    pairs = select_pairs(dataset.names, dataset.pairs(cfg.pairs_file), cfg.n_pairs, cfg.pair_seed)
+    return dataset, pairs, FeatureMemo(cfg), _eval_settings_hash(cfg)
+
+
+def _eval_pair(cfg, run_dir: Path, dataset, memo: FeatureMemo, key: str, pair: tuple) -> tuple[dict, int]:
+    """Reuse or (re)compute one pair of an eval run; return its result record and exit code."""
+    from spidermatch.batch import finished_result, pair_dir
+    from spidermatch.resume import rerun_reason
+
+    source, target = pair
+    folder = pair_dir(run_dir, source, target)
+    inputs = _pair_input_files(dataset, source, target)
+    reason = rerun_reason(finished_result(folder), key, inputs)
+    if reason is None:
         result = finished_result(folder)
-        if result is None:
-            run_pair(
-                cfg,
-                folder,
-                lambda s=source, t=target: _dataset_inputs(dataset, s, t, cfg.resolution),
-                lambda inputs, s=source, t=target: memo.pair(inputs, (s, t)),
-            )
-            result = finished_result(folder) or {"status": "error", "error": "no result.json written"}
-        else:
-            logger.info("skipping finished pair %s -> %s (%s)", source, target, result["status"])
-        rows.append(summary_row(source, target, result))
-        summary = write_summary(run_dir, rows, len(pairs), settings)
+        logger.info("skipping finished pair %s -> %s (%s)", source, target, result["status"])
+        return result, 0
+    logger.info("matching %s -> %s: %s", source, target, reason)
+    code = run_pair(
+        cfg,
+        folder,
+        lambda: _dataset_inputs(dataset, source, target, cfg.resolution),
+        lambda inputs: memo.pair(inputs, (source, target)),
+        record={"settings_hash": key, "input_files": inputs},
+    )
+    result = finished_result(folder)
+    if result is None or result.get("settings_hash") != key:  # result.json could not be written
+        result = {"status": "output_error", "error": f"no result.json written in {folder}"}
+    return result, code
+
+
+def _stop_eval(run_dir: Path, summary: dict, where: str, code: int) -> int:
+    """Record in ``summary.json`` where a signal stopped the eval; return its exit code."""
+    summary["interrupted"] = f"{where} (the pair in progress is not counted and runs again on resume)"
+    guard.write_result(run_dir / "summary.json", summary)
+    logger.warning("eval interrupted %s; run the same command again to resume", where)
+    return code
+
+
+def run_eval(cfg, run_dir: Path) -> int:
+    """Match every selected pair of a dataset into ``run_dir``, resuming finished pairs.
+
+    A stored pair result is reused only if it was made with the same settings (a hash in
+    its ``result.json``) from unchanged input files; otherwise the pair runs again. A
+    signal stops the run after recording the pair in progress as ``interrupted``.
+    """
+    from spidermatch.batch import summary_row, write_summary
+
+    with guard.signals_handled():
+        try:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            dataset, pairs, memo, key = _open_eval(cfg)
+        except (guard.RunInterrupted, OSError, *INPUT_ERRORS) as error:
+            status, code, message, _ = guard.final_status(error, INPUT_ERRORS)
+            logger.error("%s", message)
+            return code
+        settings = {
+            "dataset": str(cfg.dataset),
+            "resolution": cfg.resolution,
+            "features": memo.name,
+            "strategy": cfg.solver.strategy,
+            "pairs": len(pairs),
+            "settings_hash": key,
+        }
+        rows, summary = [], write_summary(run_dir, [], len(pairs), settings)
+        try:
+            for source, target in _progress(pairs):
+                result, code = _eval_pair(cfg, run_dir, dataset, memo, key, (source, target))
+                if code in guard.SIGNAL_EXIT_CODES.values():
+                    return _stop_eval(run_dir, summary, f"{source} -> {target}", code)
+                rows.append(summary_row(source, target, result))
+                summary = write_summary(run_dir, rows, len(pairs), settings)
+        except guard.RunInterrupted as stop:
+            return _stop_eval(run_dir, summary, "between pairs", stop.exit_code)
     _plot_run(run_dir, memo.name)
     logger.info("summary: %s", json.dumps({k: summary[k] for k in ("statuses", "geodesic_error")}))
     logger.info("wrote %s and %s", run_dir / "summary.csv", run_dir / "summary.json")
     return 0
 
 
+def _progress(pairs):
+    from tqdm.auto import tqdm
+
+    return tqdm(pairs, desc="pairs", unit="pair")
+
+
 def _dataset_inputs(dataset, source: str, target: str, resolution: int) -> MatchInputs:
     x, y = dataset.load(source), dataset.load(target)
+    if hasattr(dataset, "corr_path"):
+        check_ground_truth(x.corr, y.corr, dataset.corr_path(source), dataset.corr_path(target))
+    else:
+        check_ground_truth(x.corr, y.corr, f"{source} ground truth", f"{target} ground truth")
     return MatchInputs(x.mesh, y.mesh, x.corr, y.corr, int(resolution), f"{source} -> {target}")
 
 
@@ -359,6 +476,11 @@ def _hydra_app(run, config_name: str):
         _configure_logging(cfg.log_level)
         hydra_cfg = HydraConfig.get()
         code = run(cfg, Path(hydra_cfg.runtime.output_dir))
+        if guard.native_work_abandoned():
+            # a solve left running after a signal: end now (all files are written)
+            logging.shutdown()
+            sys.stderr.flush()
+            os._exit(code)
         if code and hydra_cfg.mode != RunMode.MULTIRUN:
             sys.exit(code)
 
@@ -367,11 +489,17 @@ def _hydra_app(run, config_name: str):
 
 def match_main() -> None:
     """Console entry point of ``spidermatch-match``."""
+    from spidermatch.cli_options import exit_on_bad_command_line
+
+    exit_on_bad_command_line("match", sys.argv[1:])
     _hydra_app(run_match, "match")()
 
 
 def eval_main() -> None:
     """Console entry point of ``spidermatch-eval``."""
+    from spidermatch.cli_options import exit_on_bad_command_line
+
+    exit_on_bad_command_line("eval", sys.argv[1:])
     _hydra_app(run_eval, "eval")()
 
 

@@ -105,6 +105,12 @@ class ShapeFolder:
     def __len__(self) -> int:
         return len(self.names)
 
+    def mesh_path(self, name: str) -> Path:
+        """Path of the mesh file of shape ``name``."""
+        if name not in self._files:
+            raise DatasetError(f"{self.root}: no shape named {name!r}")
+        return self._files[name]
+
     def corr_path(self, name: str) -> Path:
         """Path of the ground-truth file of shape ``name`` (it may not exist)."""
         return self.root / "corres" / f"{name}.vts"

@@ -46,10 +46,99 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
         )
     if path.stat().st_size == 0:
         raise MeshError(f"{name}: empty mesh (the file is empty)")
-    verts, faces = _read_with_trimesh(path)
+    verts, faces = read_off(path) if path.suffix.lower() == ".off" else _read_with_trimesh(path)
     if validate:
         return make_mesh(verts, faces, name)
     return Mesh(verts, faces, name)
+
+
+def _content_lines(path: Path) -> list[tuple[int, list[str]]]:
+    """(line number, tokens) of each line with content; ``#`` starts a comment."""
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise MeshError(f"{path}: not a text file (byte {error.start} is not UTF-8)") from error
+    lines = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        tokens = line.split("#", 1)[0].split()
+        if tokens:
+            lines.append((number, tokens))
+    return lines
+
+
+def _off_counts(path: Path, lines: list[tuple[int, list[str]]]) -> tuple[int, int, int]:
+    """Vertex and face counts from the header, and the index of the first data line."""
+    if not lines or lines[0][1][0] != "OFF":
+        raise MeshError(f"{path}: not an OFF file (the first line must be 'OFF')")
+    counts, start = lines[0][1][1:], 1
+    if not counts:
+        if len(lines) < 2:
+            raise MeshError(f"{path}: the OFF header has no vertex and face counts")
+        counts, start = lines[1][1], 2
+    line = lines[start - 1][0]
+    if len(counts) not in (2, 3) or not all(c.isascii() and c.isdigit() for c in counts):
+        raise MeshError(
+            f"{path}:{line}: expected the counts 'VERTICES FACES EDGES', got {' '.join(counts)!r}"
+        )
+    return int(counts[0]), int(counts[1]), start
+
+
+def _off_block(path: Path, lines, dtype, width: int, what: str) -> np.ndarray:
+    """The numbers of ``lines`` as an array (N, width), or a MeshError naming the first bad line."""
+    for number, tokens in lines:
+        if len(tokens) != width:
+            raise MeshError(f"{path}:{number}: a {what} line needs {width} numbers, found {len(tokens)}")
+    try:
+        return np.array([tokens for _, tokens in lines], dtype=str).astype(dtype).reshape(-1, width)
+    except (ValueError, OverflowError):
+        for number, tokens in lines:
+            try:
+                np.array(tokens, dtype=str).astype(dtype)
+            except (ValueError, OverflowError):
+                raise MeshError(
+                    f"{path}:{number}: {what} line holds a non-number: {' '.join(tokens)!r}"
+                ) from None
+        raise
+
+
+def read_off(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read an OFF file strictly: the header's counts must match what the file holds.
+
+    Vertex lines hold three coordinates, face lines ``3 i j k`` (triangles only); fewer
+    lines than promised, or anything after the promised faces, is an error naming the
+    file (and the line).
+
+    Returns
+    -------
+    verts : np.ndarray, shape (V, 3), float64
+    faces : np.ndarray, shape (F, 3), int64 (indices not yet range-checked)
+
+    """
+    path = Path(path)
+    lines = _content_lines(path)
+    n_verts, n_faces, start = _off_counts(path, lines)
+    body = lines[start:]
+    if len(body) < n_verts + n_faces:
+        held_verts = min(len(body), n_verts)
+        raise MeshError(
+            f"{path}: the header promises {n_verts} vertices and {n_faces} faces, but the file ends after "
+            f"{held_verts} vertices and {max(len(body) - n_verts, 0)} faces (truncated?)"
+        )
+    if len(body) > n_verts + n_faces:
+        number = body[n_verts + n_faces][0]
+        raise MeshError(
+            f"{path}:{number}: unexpected content after the {n_verts} vertices and {n_faces} faces the "
+            "header promises"
+        )
+    verts = _off_block(path, body[:n_verts], np.float64, 3, "vertex")
+    faces = _off_block(path, body[n_verts:], np.int64, 4, "face")
+    polygons = np.flatnonzero(faces[:, 0] != 3)
+    if polygons.size:
+        number = body[n_verts + polygons[0]][0]
+        raise MeshError(
+            f"{path}:{number}: face with {faces[polygons[0], 0]} corners; only triangles are supported"
+        )
+    return verts, faces[:, 1:]
 
 
 def _read_with_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -95,13 +184,19 @@ def read_vts(path: str | os.PathLike, n_verts: int | None = None) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise MeshError(f"{path}: no such correspondence file")
-    tokens = path.read_text().split()
-    if not tokens:
+    values = []
+    for number, tokens in _content_lines(path):
+        for token in tokens:
+            if not (
+                token.isascii() and token.lstrip("+-").isdigit() and len(token) - len(token.lstrip("+-")) <= 1
+            ):
+                raise MeshError(f"{path}:{number}: {token!r} is not a whole vertex index")
+            values.append(int(token))
+    if not values:
         raise MeshError(f"{path}: empty correspondence file")
-    try:
-        one_based = np.array([int(float(t)) for t in tokens], dtype=np.int64)
-    except ValueError as error:
-        raise MeshError(f"{path}: correspondence file must hold integer vertex indices ({error})") from error
+    if max(values) > np.iinfo(np.int64).max:
+        raise MeshError(f"{path}: vertex index {max(values)} is out of range")
+    one_based = np.array(values, dtype=np.int64)
     if one_based.min() < 1:
         raise MeshError(f"{path}: .vts indices are 1-based, found {int(one_based.min())}")
     if n_verts is not None and one_based.max() > n_verts:

@@ -179,7 +179,8 @@ def validate_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") ->
 
     Checks, in order: array shapes, empty mesh, non-finite coordinates, faces that
     index missing vertices, degenerate faces (repeated vertex or zero area),
-    vertices used by no face, non-manifold edges (more than two faces), and
+    vertices used by no face, non-manifold edges (more than two faces),
+    non-manifold vertices (two fans of faces meeting at one vertex, a "bowtie") and
     several connected components.
 
     Parameters
@@ -198,6 +199,7 @@ def validate_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") ->
     _check_degenerate_faces(verts, faces, name)
     _check_unreferenced(faces, verts.shape[0], name)
     _check_manifold_edges(faces, name)
+    _check_manifold_vertices(faces, name)
     _check_single_component(faces, verts.shape[0], name)
 
 
@@ -266,6 +268,51 @@ def _check_manifold_edges(faces: np.ndarray, name: str) -> None:
         raise MeshError(
             f"{name}: {int(bad.sum())} non-manifold edges shared by more than two faces "
             f"(first: edge {first.tolist()} in {int(counts[bad][0])} faces)"
+        )
+
+
+def vertex_fans(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Fans of faces around each vertex: corners linked across the edges they share.
+
+    Parameters
+    ----------
+    faces : np.ndarray, shape (F, 3)
+        Faces whose edges have at most two faces each.
+
+    Returns
+    -------
+    vertex : np.ndarray, shape (3F,)
+        Vertex of each face corner (corner c of face f is entry 3f + c).
+    fan : np.ndarray, shape (3F,)
+        Label of the fan each corner belongs to; a manifold vertex's corners share one label.
+
+    """
+    n_corners = faces.size
+    edges = face_edges(faces).reshape(-1, 2)  # edge k of face f is opposite corner k
+    face_of = np.repeat(np.arange(len(faces)), 3)
+    order = np.lexsort((edges[:, 1], edges[:, 0]))
+    same = np.all(edges[order[1:]] == edges[order[:-1]], axis=1)
+    first, second = order[:-1][same], order[1:][same]  # the two occurrences of each interior edge
+    corner_a = face_of[first] * 3 + np.argmax(faces[face_of[first]] == edges[first, :1], axis=1)
+    corner_b = face_of[second] * 3 + np.argmax(faces[face_of[second]] == edges[first, :1], axis=1)
+    corner_c = face_of[first] * 3 + np.argmax(faces[face_of[first]] == edges[first, 1:], axis=1)
+    corner_d = face_of[second] * 3 + np.argmax(faces[face_of[second]] == edges[first, 1:], axis=1)
+    rows = np.concatenate([corner_a, corner_c])
+    cols = np.concatenate([corner_b, corner_d])
+    graph = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(n_corners, n_corners))
+    return faces.reshape(-1), connected_components(graph, directed=False)[1]
+
+
+def _check_manifold_vertices(faces: np.ndarray, name: str) -> None:
+    vertex, fan = vertex_fans(faces)
+    pairs = np.unique(np.stack([vertex, fan], axis=1), axis=0)
+    fans_per_vertex = np.bincount(pairs[:, 0])
+    bad = np.flatnonzero(fans_per_vertex > 1)
+    if bad.size:
+        raise MeshError(
+            f"{name}: {bad.size} non-manifold vertices where separate fans of faces meet, like a bowtie "
+            f"(first: vertex {bad[0]}, in {fans_per_vertex[bad[0]]} fans); spidermatch needs a manifold "
+            "surface: split or remove these vertices"
         )
 
 

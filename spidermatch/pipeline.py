@@ -20,6 +20,7 @@ from spidermatch.correspondence import (
     active_edges,
     canonical_point_map,
     check_solution,
+    entries_without_flow,
     extract_path,
 )
 from spidermatch.costs import RobustLoss, feature_cost_matrix, product_edge_costs
@@ -251,19 +252,23 @@ def match(
     result = MatchResult(low_x, low_y, curve, graph, solved, timings=timings)
     if solved.x is not None:
         with _stage(timings, "check"):
-            _read_solution(result)
+            _read_solution(result, tuple(settings.constraints))
     return result
 
 
-def _read_solution(result: MatchResult) -> None:
+def _read_solution(result: MatchResult, families: tuple = FAMILIES) -> None:
     tuples = active_edges(result.graph, result.solve.x)
     target_edges = result.graph.target_edges[: result.graph.target_edges.shape[0] // 2]
-    result.check = check_solution(result.curve.vertices, target_edges, result.graph.n_target, tuples)
+    n_target = result.graph.n_target
+    result.check = check_solution(result.curve.vertices, target_edges, n_target, tuples, families)
     if not result.check.ok:
         logger.error("solution check failed: %s", "; ".join(result.check.problems))
         return
     try:
-        result.path = extract_path(result.graph, result.solve.x)
+        if "CON" in families:
+            result.path = extract_path(result.graph, result.solve.x)
+        else:  # an ablation without flow conservation: one crossing edge per layer, no walk
+            result.path = entries_without_flow(result.graph, result.solve.x)
     except SolutionError as error:
         result.check = CheckReport(False, (str(error),))
         return

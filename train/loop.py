@@ -268,7 +268,7 @@ def write_validation_report(history: list[dict[str, float]], out_dir: Path) -> N
 
 @contextlib.contextmanager
 def stop_on_interrupt():
-    """Turn the first Ctrl-C into a request to stop after the current step.
+    """Turn the first SIGINT (Ctrl-C) or SIGTERM into a request to stop after the current step.
 
     Yields a one-element list whose item becomes True when a stop was requested;
     a second Ctrl-C interrupts at once.
@@ -282,13 +282,16 @@ def stop_on_interrupt():
         if requested[0]:
             raise KeyboardInterrupt
         requested[0] = True
-        logger.warning("interrupt: stopping after this step (Ctrl-C again to abort)")
+        name = signal.Signals(signum).name
+        logger.warning("%s: stopping after this step and saving last.pt (Ctrl-C again to abort)", name)
 
-    previous = signal.signal(signal.SIGINT, handler)
+    stops = (signal.SIGINT, signal.SIGTERM)  # SIGTERM: `timeout`, SLURM pre-emption
+    previous = {sig: signal.signal(sig, handler) for sig in stops}
     try:
         yield requested
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for sig, old in previous.items():
+            signal.signal(sig, old)
 
 
 def run_training(

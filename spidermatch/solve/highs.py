@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import logging
 import math
+import queue
+import threading
 import time
 from dataclasses import dataclass, field, replace
 
 import highspy
 import numpy as np
 
+from spidermatch import guard
 from spidermatch.ilp import IlpModel
 
 logger = logging.getLogger(__name__)
@@ -139,14 +142,31 @@ def certified_mip_bound(dual_bound: float, incumbent: float, rel_gap: float) -> 
     return min(dual_bound, incumbent - rel_gap * abs(incumbent))
 
 
+_INTERRUPT_CALLBACKS = (
+    highspy.cb.HighsCallbackType.kCallbackSimplexInterrupt,
+    highspy.cb.HighsCallbackType.kCallbackIpmInterrupt,
+    highspy.cb.HighsCallbackType.kCallbackMipInterrupt,
+)
+
+
+class SolverOptionError(ValueError):
+    """HiGHS rejected an option value (it would otherwise run silently with its default)."""
+
+
+def set_option(highs, name: str, value) -> None:
+    """``highs.setOptionValue(name, value)``, raising :class:`SolverOptionError` if HiGHS rejects it."""
+    if highs.setOptionValue(name, value) == highspy.HighsStatus.kError:
+        raise SolverOptionError(f"HiGHS rejected the option {name}={value!r}")
+
+
 def _configure(highs, options: SolverOptions) -> None:
     global _PROCESS_THREADS
-    highs.setOptionValue("output_flag", bool(options.log))
+    set_option(highs, "output_flag", bool(options.log))
     if math.isfinite(options.time_limit):
-        highs.setOptionValue("time_limit", float(options.time_limit))
-    highs.setOptionValue("mip_rel_gap", float(options.mip_rel_gap))
-    highs.setOptionValue("mip_abs_gap", 0.0)  # the gap is relative only (HiGHS's default adds 1e-6 absolute)
-    highs.setOptionValue("presolve", options.presolve)
+        set_option(highs, "time_limit", float(options.time_limit))
+    set_option(highs, "mip_rel_gap", float(options.mip_rel_gap))
+    set_option(highs, "mip_abs_gap", 0.0)  # the gap is relative only (HiGHS's default adds 1e-6 absolute)
+    set_option(highs, "presolve", options.presolve)
     if _PROCESS_THREADS is None:
         _PROCESS_THREADS = int(options.threads)
     elif options.threads != _PROCESS_THREADS:
@@ -154,9 +174,9 @@ def _configure(highs, options: SolverOptions) -> None:
             "HiGHS threads are fixed per process: keeping %d, ignoring %d", _PROCESS_THREADS, options.threads
         )
     if _PROCESS_THREADS:
-        highs.setOptionValue("threads", _PROCESS_THREADS)
+        set_option(highs, "threads", _PROCESS_THREADS)
     for name, value in options.extra.items():
-        highs.setOptionValue(name, value)
+        set_option(highs, name, value)
 
 
 def _pass_model(highs, model: IlpModel, integer: bool) -> None:
@@ -214,12 +234,21 @@ class HighsSession:
         _configure(self.highs, self.options)
         _pass_model(self.highs, model, integer=not relax)
         self.improving: list[tuple[float, np.ndarray]] = []
+        self.progress = (math.inf, -math.inf)  # (incumbent, dual bound) at HiGHS's last MIP callback
+        self.highs.setCallback(self._callback, None)
+        for kind in _INTERRUPT_CALLBACKS:
+            self.highs.startCallback(kind)
         if not relax:
-            self.highs.setCallback(self._record_improving, None)
             self.highs.startCallback(highspy.cb.HighsCallbackType.kCallbackMipImprovingSolution)
 
-    def _record_improving(self, kind, message, data_out, data_in, user_data) -> None:
-        """HiGHS callback: keep a copy of each improving solution."""
+    def _callback(self, kind, message, data_out, data_in, user_data) -> None:
+        """HiGHS callback: stop on a signal (see :mod:`spidermatch.guard`), record progress."""
+        if kind in _INTERRUPT_CALLBACKS:
+            if kind == highspy.cb.HighsCallbackType.kCallbackMipInterrupt:
+                self.progress = (float(data_out.mip_primal_bound), float(data_out.mip_dual_bound))
+            if guard.stop_requested():
+                data_in.user_interrupt = True
+            return
         x = np.array(data_out.mip_solution, dtype=np.float64)
         if x.shape == (self.n_vars,):
             self.improving.append((float(data_out.objective_function_value), x))
@@ -245,6 +274,19 @@ class HighsSession:
         self.n_rows += rows.shape[0]
         self.nnz += int(rows.nnz)
 
+    def _figures_so_far(self) -> dict:
+        """Incumbent and certified bound of the running MIP, from HiGHS's last callback."""
+        if self.relax:
+            return {"incumbent_objective": None, "bound": None, "gap": None, "solver_message": "LP running"}
+        incumbent, dual = self.progress
+        bound = certified_mip_bound(dual, incumbent, self.options.mip_rel_gap)
+        return {
+            "incumbent_objective": _finite_or_none(incumbent),
+            "bound": _finite_or_none(bound),
+            "gap": _finite_or_none(relative_gap(incumbent, bound)),
+            "solver_message": "HiGHS had not stopped yet; figures from its last progress report",
+        }
+
     def row_duals(self) -> np.ndarray:
         """Row duals (m,) of the last LP solve (HiGHS's sign convention: ``r = c - A^T y``)."""
         return np.asarray(self.highs.getSolution().row_dual, dtype=np.float64)
@@ -259,9 +301,81 @@ class HighsSession:
         start = time.perf_counter()
         if math.isfinite(self.options.time_limit):
             left = self.options.time_limit - (start - self.started)
-            self.highs.setOptionValue("time_limit", max(left, 0.0))
-        self.highs.run()
-        return _read_result(self, time.perf_counter() - start)
+            set_option(self.highs, "time_limit", max(left, 0.0))
+        run_interruptibly(self.highs, self._figures_so_far)
+        result = _read_result(self, time.perf_counter() - start)
+        guard.raise_if_stopped(interrupted_figures(result))
+        return result
+
+
+class _SolverThread:
+    """One long-lived daemon thread that runs every HiGHS solve of the process.
+
+    The main thread waits in Python, so a signal handler runs at once (it cannot while the
+    main thread is inside C++); and HiGHS always sees the same calling thread, as it did
+    when it ran on the main thread.
+    """
+
+    def __init__(self) -> None:
+        self.jobs: queue.Queue = queue.Queue()
+        self.thread: threading.Thread | None = None
+
+    def submit(self, job) -> threading.Event:
+        """Run ``job()`` on the solver thread; the returned event is set when it has finished."""
+        if self.thread is None or not self.thread.is_alive():
+            self.thread = threading.Thread(target=self._work, name="highs", daemon=True)
+            self.thread.start()
+        done = threading.Event()
+        self.jobs.put((job, done))
+        return done
+
+    def _work(self) -> None:
+        while True:
+            job, done = self.jobs.get()
+            try:
+                job()
+            finally:
+                done.set()
+
+
+_SOLVER_THREAD = _SolverThread()
+STOP_GRACE_S = 1.0  # after a signal, how long to wait for HiGHS to reach an interrupt check
+
+
+def run_interruptibly(highs, figures_so_far) -> None:
+    """``highs.run()`` on the solver thread, stopped by SIGINT/SIGTERM.
+
+    On a signal HiGHS's interrupt callbacks stop the solve at its next check. HiGHS does
+    not check during presolve or some heuristics, which can last minutes; if it has not
+    stopped within ``STOP_GRACE_S`` the solve is abandoned (it dies with the process) and
+    :class:`~spidermatch.guard.RunInterrupted` carries ``figures_so_far()``.
+    """
+    failure: list[BaseException] = []
+
+    def job() -> None:
+        try:
+            highs.run()
+        except BaseException as error:  # re-raised on the calling thread
+            failure.append(error)
+
+    with guard.native_call():
+        done = _SOLVER_THREAD.submit(job)
+        while not done.wait(0.05):
+            if guard.stop_requested() and not done.wait(STOP_GRACE_S):
+                guard.abandon_native_work()
+                guard.raise_if_stopped(figures_so_far())
+    if failure:
+        raise failure[0]
+
+
+def interrupted_figures(result: SolveResult) -> dict:
+    """What an interrupted solve knew: HiGHS's incumbent (unchecked) and its bound, JSON-ready."""
+    return {
+        "incumbent_objective": _finite_or_none(result.objective),
+        "bound": _finite_or_none(result.bound),
+        "gap": _finite_or_none(result.gap),
+        "solver_message": result.message,
+    }
 
 
 def solve_model(

@@ -29,6 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from spidermatch.curve import SpiderCurve
+from spidermatch.guard import RunInterrupted
 from spidermatch.ilp import IlpModel, restrict_columns
 from spidermatch.product_graph import ProductGraph
 from spidermatch.solve.connectivity import connectivity_cuts, detached_components, two_cycle_components
@@ -144,7 +145,9 @@ def solve_with_cuts(
         session.set_solution(incumbent if columns is None else incumbent[columns])
     result = session.run()
     rounds = 0
-    for round_number in range(1, MAX_CUT_ROUNDS + 1):
+    # connectivity cuts are valid for closed paths, which only flow conservation (CON) makes
+    max_rounds = MAX_CUT_ROUNDS if imposes_paths(model) else 0
+    for round_number in range(1, max_rounds + 1):
         x = expand(result.x, columns, model.n_vars)
         if x is None:
             break
@@ -181,6 +184,11 @@ def solve_with_cuts(
         result = session.run()  # the session gives each run only the time left
     x = expand(result.x, columns, model.n_vars)
     return replace(result, x=x, wall_time=time.perf_counter() - start, cut_rounds=rounds)
+
+
+def imposes_paths(model: IlpModel) -> bool:
+    """True if the model imposes closed paths (CYC and CON), so that connectivity cuts apply."""
+    return {"CYC", "CON"} <= set(model.row_families)
 
 
 def solve_plain(
@@ -252,6 +260,16 @@ def seed_columns(lp: LpSolve, scale: float) -> np.ndarray:
     return np.flatnonzero((reduced <= threshold) | (lp.x > 1e-9))
 
 
+def full_model_figures(incumbent: float | None, certified_bound: float) -> dict:
+    """Bound and gap of an interrupted rcfix run, for the full model.
+
+    The restricted MIP's own bound holds for its columns only; the LP's dual bound
+    (``certified_bound``) holds for the full model.
+    """
+    gap = relative_gap(incumbent, certified_bound) if incumbent is not None else math.nan
+    return {"bound": float(certified_bound), "gap": gap if math.isfinite(gap) else None}
+
+
 def remaining(options: SolverOptions, start: float) -> SolverOptions:
     """The options with the time limit reduced by what has elapsed since ``start``."""
     left = max(options.time_limit - (time.perf_counter() - start), 0.0)
@@ -290,10 +308,14 @@ def solve_reduced_cost_fixing(
             model.n_vars,
             gap,
         )
-        n_cuts = pool.add_two_cycle_cuts(graph, intersection_layers, columns)
+        n_cuts = pool.add_two_cycle_cuts(graph, intersection_layers, columns) if imposes_paths(model) else 0
         logger.info("rcfix phase %d: %d connectivity cuts for 2-cycles added up front", phase, n_cuts)
         phase_options = replace(remaining(options, start), mip_rel_gap=gap)
-        result = solve_with_cuts(model, graph, phase_options, columns, incumbent, pool)
+        try:
+            result = solve_with_cuts(model, graph, phase_options, columns, incumbent, pool)
+        except RunInterrupted as stop:
+            stop.known.update(full_model_figures(stop.known.get("incumbent_objective"), lp.dual.bound))
+            raise
         if result.status == "infeasible":
             if columns.size == model.n_vars:
                 break

@@ -1,0 +1,100 @@
+"""Which stored pair results a resumed ``spidermatch-eval`` may reuse.
+
+A pair's ``result.json`` records a hash of the settings that decide it (resolution,
+features and the checkpoint's content, curve, costs, solver options; not the log level or
+the plots) and a fingerprint of its input files (size and modification time). A re-run
+reuses a stored result only if both match and its status is final; otherwise the pair is
+run again, so a run folder never mixes results of different settings.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from pathlib import Path
+
+logger = logging.getLogger(__name__)
+
+# statuses that are the pair's real outcome (interrupted, output_error, started: run again)
+FINAL_STATUSES = ("optimal", "feasible", "infeasible", "no_solution", "solver_failure", "input_error")
+IGNORED_SOLVER_KEYS = ("log",)  # options that do not change a result
+
+
+def file_identity(path: str | os.PathLike | None) -> dict | None:
+    """Size and modification time of a file (None when no path is given; 'missing' if absent)."""
+    if path is None:
+        return None
+    path = Path(path)
+    try:
+        stat = path.stat()
+    except OSError:
+        return {"path": str(path), "missing": True}
+    return {"path": str(path), "size": stat.st_size, "mtime_ns": stat.st_mtime_ns}
+
+
+def content_hash(path: str | os.PathLike | None) -> str | None:
+    """SHA-256 of a file's content (a checkpoint's identity), None without a readable file."""
+    if path is None or not Path(path).is_file():
+        return None
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def settings_hash(settings: dict) -> str:
+    """A short stable hash of plain-value settings (JSON with sorted keys)."""
+    text = json.dumps(settings, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def deciding_settings(config: dict, checkpoint: str | None) -> dict:
+    """The settings that decide a pair's result, from the plain eval configuration.
+
+    Parameters
+    ----------
+    config : dict
+        The resolved eval configuration as plain values.
+    checkpoint : str, optional
+        The features' checkpoint file: its content hash stands for it.
+
+    """
+    solver = {k: v for k, v in config["solver"].items() if k not in IGNORED_SOLVER_KEYS}
+    return {
+        "dataset": str(config.get("dataset")),
+        "synthetic": config.get("synthetic") if config.get("dataset") in (None, "", "synthetic") else None,
+        "resolution": config.get("resolution"),
+        "features": {k: v for k, v in config["features"].items() if k != "checkpoint"},
+        "checkpoint_sha256": content_hash(checkpoint),
+        "curve": config["curve"],
+        "costs": config["costs"],
+        "solver": solver,
+        "allow_topology_mismatch": bool(config.get("allow_topology_mismatch", False)),
+    }
+
+
+def rerun_reason(result: dict | None, key: str, inputs: list) -> str | None:
+    """Why a stored pair result cannot be reused (None: reuse it).
+
+    Parameters
+    ----------
+    result : dict or None
+        The pair's stored ``result.json``.
+    key : str
+        :func:`settings_hash` of the current settings.
+    inputs : list
+        :func:`file_identity` of the pair's current input files.
+
+    """
+    if result is None:
+        return "no result yet"
+    if result.get("status") not in FINAL_STATUSES:
+        return f"the last run ended with status {result.get('status')!r}"
+    if result.get("settings_hash") != key:
+        return "the settings changed since it was matched"
+    if result.get("input_files") != inputs:
+        return "its input files changed since it was matched"
+    return None

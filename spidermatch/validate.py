@@ -1,0 +1,217 @@
+"""One validation layer for options and inputs, run before any work.
+
+Options (the composed configuration of ``spidermatch-match`` / ``spidermatch-eval``) are
+checked as plain values: each problem names its option, e.g. ``solver.mip_rel_gap=-1:
+must be >= 0 and < 1``. Inputs are checked as a pair: ground-truth files of equal
+length, the same topology (genus and number of boundary loops) on both sides, and a
+mesh not far below the requested resolution.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from numbers import Integral, Real
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from spidermatch.mesh import Mesh, MeshError, face_edges
+
+logger = logging.getLogger(__name__)
+
+MIN_RESOLUTION = 4  # a tetrahedron: the coarsest closed triangle mesh
+PRESOLVE_VALUES = ("choose", "on", "off")
+DECIMATIONS = ("shortest_edge", "qslim")
+REQUIRED_FAMILY = "CYC"  # every other family constrains the per-layer choice that CYC makes
+
+
+class OptionError(ValueError):
+    """One or more options have unusable values; the message names each option."""
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, Integral) and not isinstance(value, bool)
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, Real) and not isinstance(value, bool) and not math.isnan(value)
+
+
+def _show(value) -> str:
+    return repr(value) if isinstance(value, str) else str(value)
+
+
+def resolution_problem(value, key: str = "resolution") -> str | None:
+    """Why ``value`` is not a usable face count (None if it is; None itself means 'the default')."""
+    if value is None:
+        return None
+    if not _is_int(value) or value < MIN_RESOLUTION:
+        return f"{key}={_show(value)}: must be a whole number of faces >= {MIN_RESOLUTION}"
+    return None
+
+
+def solver_problems(solver, strategies) -> list[str]:
+    """Problems with the ``solver`` option group (time_limit, mip_rel_gap, threads, presolve, ...)."""
+    problems = []
+    limit = solver.get("time_limit")
+    if not _is_number(limit) or limit <= 0:
+        problems.append(f"solver.time_limit={_show(limit)}: must be a number of seconds > 0 (or inf)")
+    gap = solver.get("mip_rel_gap")
+    if not _is_number(gap) or not 0 <= gap < 1:
+        problems.append(f"solver.mip_rel_gap={_show(gap)}: must be a number >= 0 and < 1")
+    threads = solver.get("threads")
+    if not _is_int(threads) or threads < 0:
+        problems.append(f"solver.threads={_show(threads)}: must be a whole number >= 0 (0: HiGHS chooses)")
+    if solver.get("presolve") not in PRESOLVE_VALUES:
+        problems.append(
+            f"solver.presolve={_show(solver.get('presolve'))}: choose from {', '.join(PRESOLVE_VALUES)}"
+        )
+    if solver.get("strategy") not in strategies:
+        problems.append(
+            f"solver.strategy={_show(solver.get('strategy'))}: choose from {', '.join(strategies)}"
+        )
+    if not isinstance(solver.get("log"), bool):
+        problems.append(f"solver.log={_show(solver.get('log'))}: must be true or false")
+    return problems
+
+
+def constraints_problem(value, families) -> str | None:
+    """Why ``costs.constraints`` is not a usable set of constraint families (None if it is)."""
+    if isinstance(value, str) or not hasattr(value, "__iter__"):
+        return f"costs.constraints={_show(value)}: must be a list such as [{', '.join(families)}]"
+    names = list(value)
+    if not names:
+        return f"costs.constraints=[]: give at least {REQUIRED_FAMILY} (choose from {', '.join(families)})"
+    unknown = [name for name in names if name not in families]
+    if unknown:
+        return f"costs.constraints: unknown families {unknown}; choose from {', '.join(families)}"
+    if len(set(names)) != len(names):
+        return f"costs.constraints={names}: a family is named twice"
+    if REQUIRED_FAMILY not in names:
+        return (
+            f"costs.constraints={names}: {REQUIRED_FAMILY} is required (it makes the curve cross "
+            "every layer once; the other families only constrain that choice)"
+        )
+    return None
+
+
+def costs_and_curve_problems(cfg) -> list[str]:
+    """Problems with the ``costs`` (apart from constraints) and ``curve`` option groups."""
+    problems = []
+    for key in ("alpha", "scale", "bowl_exponent"):
+        value = cfg.costs.get(key)
+        if not _is_number(value) or not math.isfinite(value):
+            problems.append(f"costs.{key}={_show(value)}: must be a finite number")
+    scale = cfg.costs.get("scale")
+    if _is_number(scale) and scale <= 0:
+        problems.append(f"costs.scale={_show(scale)}: must be > 0")
+    for key, group in (("target_augmented", cfg.costs), ("augmented", cfg.curve)):
+        if not isinstance(group.get(key), bool):
+            problems.append(f"{'costs' if group is cfg.costs else 'curve'}.{key}: must be true or false")
+    if not _is_int(cfg.curve.get("seed")):
+        problems.append(f"curve.seed={_show(cfg.curve.get('seed'))}: must be a whole number")
+    if cfg.curve.get("decimation") not in DECIMATIONS:
+        problems.append(
+            f"curve.decimation={_show(cfg.curve.get('decimation'))}: choose from {', '.join(DECIMATIONS)}"
+        )
+    return problems
+
+
+def check_options(cfg) -> None:
+    """Validate every option that decides a match; raise :class:`OptionError` listing all problems.
+
+    Parameters
+    ----------
+    cfg : DictConfig or mapping
+        Needs ``resolution`` and the groups ``solver``, ``costs`` and ``curve``.
+
+    """
+    from spidermatch.ilp import FAMILIES
+    from spidermatch.solve.strategies import STRATEGIES
+
+    problems = [resolution_problem(cfg.get("resolution"))]
+    problems += solver_problems(cfg.solver, sorted(STRATEGIES))
+    problems.append(constraints_problem(cfg.costs.get("constraints"), FAMILIES))
+    problems += costs_and_curve_problems(cfg)
+    problems = [p for p in problems if p]
+    if problems:
+        raise OptionError("bad option: " + "; ".join(problems))
+
+
+@dataclass(frozen=True)
+class Topology:
+    """Topological type of a connected, manifold triangle mesh.
+
+    Attributes
+    ----------
+    euler : int
+        V - E + F.
+    boundaries : int
+        Number of boundary loops.
+    genus : int
+        (2 - euler - boundaries) / 2.
+
+    """
+
+    euler: int
+    boundaries: int
+    genus: int
+
+    def __str__(self) -> str:
+        loops = "closed" if not self.boundaries else f"{self.boundaries} boundary loop(s)"
+        return f"genus {self.genus}, {loops}"
+
+
+def topology(mesh: Mesh) -> Topology:
+    """Genus and boundary loops of a validated (connected, manifold) mesh."""
+    edges, counts = np.unique(face_edges(mesh.faces).reshape(-1, 2), axis=0, return_counts=True)
+    euler = mesh.n_verts - len(edges) + mesh.n_faces
+    boundary = edges[counts == 1]
+    loops = 0
+    if len(boundary):
+        nodes, index = np.unique(boundary, return_inverse=True)
+        index = index.reshape(-1, 2)
+        graph = sp.coo_matrix((np.ones(len(index)), (index[:, 0], index[:, 1])), shape=(nodes.size,) * 2)
+        loops = connected_components(graph, directed=False)[0]
+    return Topology(int(euler), int(loops), int((2 - euler - loops) // 2))
+
+
+def check_same_topology(source: Mesh, target: Mesh) -> tuple[Topology, Topology]:
+    """Refuse a pair of meshes of different topology (raise :class:`MeshError` naming both)."""
+    top_x, top_y = topology(source), topology(target)
+    if (top_x.genus, top_x.boundaries) != (top_y.genus, top_y.boundaries):
+        raise MeshError(
+            f"the meshes differ in topology: {source.name} has {top_x}, {target.name} has {top_y}. "
+            "SpiderMatch maps a curve through all of the source onto the target; across different "
+            "genus or boundaries no consistent matching may exist and the solver can search for hours. "
+            "Repair the meshes, or set allow_topology_mismatch=true to try anyway"
+        )
+    return top_x, top_y
+
+
+def check_ground_truth(source_corr, target_corr, source_name: str, target_name: str) -> None:
+    """Ground-truth files of a pair must have the same number of points (row k corresponds)."""
+    if source_corr is None or target_corr is None:
+        return
+    if len(source_corr) != len(target_corr):
+        raise MeshError(
+            f"ground-truth files of different lengths: {source_name} has {len(source_corr)} points, "
+            f"{target_name} has {len(target_corr)} (row k of the two files must correspond)"
+        )
+
+
+def coarseness_warnings(meshes: tuple[Mesh, ...], resolution: int) -> list[str]:
+    """Warnings for meshes with fewer faces than the requested resolution (they are not refined)."""
+    warnings = []
+    for mesh in meshes:
+        if mesh.n_faces < resolution:
+            warnings.append(
+                f"{mesh.name} has only {mesh.n_faces} faces, fewer than resolution={resolution}: it is "
+                "matched as it is, and the matching is only as fine as this mesh"
+            )
+    for text in warnings:
+        logger.warning("%s", text)
+    return warnings
