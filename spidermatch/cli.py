@@ -27,7 +27,13 @@ from spidermatch.io import load_mesh, read_vts
 from spidermatch.mesh import Mesh, MeshError
 from spidermatch.pipeline import MatchError, MatchResult, MatchSettings, match
 from spidermatch.solve.highs import SolverOptions
-from spidermatch.validate import check_ground_truth, check_options, check_same_topology, coarseness_warnings
+from spidermatch.validate import (
+    OptionError,
+    check_ground_truth,
+    check_options,
+    check_same_topology,
+    coarseness_warnings,
+)
 
 logger = logging.getLogger("spidermatch.match")
 
@@ -198,12 +204,13 @@ def run_pair(cfg, output_dir: Path, get_inputs, get_features, record: dict | Non
             (logger.warning if status == "interrupted" else logger.error)("%s", message)
             report.update(known)
             report.update(status=status, proven_optimal=False, error=message, exit_code=code)
-        report["total_time_s"] = round(time.perf_counter() - started, 3)
-        if result_path is not None:
-            if guard.write_result(result_path, report):
-                logger.info("wrote %s", result_path)
-            elif code == 0:
-                code = guard.EXIT_OUTPUT_ERROR
+        with guard.signals_held():
+            report["total_time_s"] = round(time.perf_counter() - started, 3)
+            if result_path is not None:
+                if guard.write_result(result_path, report):
+                    logger.info("wrote %s", result_path)
+                elif code == 0:
+                    code = guard.EXIT_OUTPUT_ERROR
     return code
 
 
@@ -355,6 +362,8 @@ def _open_eval(cfg):
     from spidermatch.datasets import open_dataset
 
     check_options(cfg)
+    if cfg.resolution is None:
+        raise OptionError("bad option: resolution=null: an eval needs a face count")
     options = dict(cfg.synthetic) if cfg.dataset in (None, "", "synthetic") else {}
     dataset = open_dataset(cfg.dataset, **options)
     pairs = select_pairs(dataset.names, dataset.pairs(cfg.pairs_file), cfg.n_pairs, cfg.pair_seed)
@@ -429,6 +438,7 @@ def run_eval(cfg, run_dir: Path) -> int:
                     return _stop_eval(run_dir, summary, f"{source} -> {target}", code)
                 rows.append(summary_row(source, target, result))
                 summary = write_summary(run_dir, rows, len(pairs), settings)
+                guard.raise_if_stopped()  # a signal that came while a pair's files were written
         except guard.RunInterrupted as stop:
             return _stop_eval(run_dir, summary, "between pairs", stop.exit_code)
     _plot_run(run_dir, memo.name)

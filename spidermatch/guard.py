@@ -73,6 +73,7 @@ class _State:
     installed: int = 0  # nesting depth of signals_handled()
     wakeup: int | None = None  # read end of the pipe that Python's C-level handler writes to
     abandoned: bool = False  # a HiGHS solve was left running on its thread after a signal
+    held: int = 0  # > 0 while final files are written (signals_held)
 
 
 _STATE = _State()
@@ -97,7 +98,7 @@ def stop_requested() -> bool:
 
 def raise_if_stopped(known: dict | None = None) -> None:
     """Raise :class:`RunInterrupted` (once) if a signal asked the run to stop."""
-    if _STATE.signum is not None and not _STATE.raised:
+    if _STATE.signum is not None and not _STATE.raised and not _STATE.held:
         _STATE.raised = True
         raise RunInterrupted(_STATE.signum, known)
 
@@ -113,6 +114,19 @@ def native_work_abandoned() -> bool:
     A normal interpreter exit could wait for the abandoned solver thread.
     """
     return _STATE.abandoned
+
+
+@contextlib.contextmanager
+def signals_held():
+    """Inside the block a signal is only recorded, not raised (a run's final files are written there).
+
+    A signal that came meanwhile is raised by the next :func:`raise_if_stopped`.
+    """
+    _STATE.held += 1
+    try:
+        yield
+    finally:
+        _STATE.held -= 1
 
 
 @contextlib.contextmanager

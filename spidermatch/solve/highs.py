@@ -246,7 +246,7 @@ class HighsSession:
         if kind in _INTERRUPT_CALLBACKS:
             if kind == highspy.cb.HighsCallbackType.kCallbackMipInterrupt:
                 self.progress = (float(data_out.mip_primal_bound), float(data_out.mip_dual_bound))
-            if guard.stop_requested():
+            if guard.stop_requested() or _CANCEL.is_set():
                 data_in.user_interrupt = True
             return
         x = np.array(data_out.mip_solution, dtype=np.float64)
@@ -339,6 +339,7 @@ class _SolverThread:
 
 
 _SOLVER_THREAD = _SolverThread()
+_CANCEL = threading.Event()  # set when the waiting thread gave up on a solve: HiGHS stops at its next check
 STOP_GRACE_S = 1.0  # after a signal, how long to wait for HiGHS to reach an interrupt check
 
 
@@ -358,12 +359,17 @@ def run_interruptibly(highs, figures_so_far) -> None:
         except BaseException as error:  # re-raised on the calling thread
             failure.append(error)
 
+    _CANCEL.clear()
     with guard.native_call():
         done = _SOLVER_THREAD.submit(job)
-        while not done.wait(0.05):
-            if guard.stop_requested() and not done.wait(STOP_GRACE_S):
-                guard.abandon_native_work()
-                guard.raise_if_stopped(figures_so_far())
+        try:
+            while not done.wait(0.05):
+                if guard.stop_requested() and not done.wait(STOP_GRACE_S):
+                    guard.abandon_native_work()
+                    guard.raise_if_stopped(figures_so_far())
+        except BaseException:  # e.g. KeyboardInterrupt without spidermatch's handler: stop HiGHS too
+            _CANCEL.set()
+            raise
     if failure:
         raise failure[0]
 
