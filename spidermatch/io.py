@@ -190,7 +190,7 @@ def read_vts(path: str | os.PathLike, n_verts: int | None = None) -> np.ndarray:
             if not (
                 token.isascii() and token.lstrip("+-").isdigit() and len(token) - len(token.lstrip("+-")) <= 1
             ):
-                raise MeshError(f"{path}:{number}: {token!r} is not a whole vertex index")
+                raise MeshError(f"{path}:{number}: {token!r} is not an integer vertex index")
             values.append(int(token))
     if not values:
         raise MeshError(f"{path}: empty correspondence file")

@@ -48,22 +48,27 @@ def test_broken_mesh_is_reported_and_other_pairs_complete(tmp_path):
     assert (tmp_path / "collected.csv").is_file() and (tmp_path / "curves.png").is_file()
 
 
+def _finished(pairs_dir):
+    """Modification times of the pairs' result.json files that are not 'started'."""
+    return {
+        p.parent.name: p.stat().st_mtime_ns
+        for p in pairs_dir.glob("*/result.json")
+        if json.loads(p.read_text())["status"] != "started"
+    }
+
+
 def test_killed_evaluation_resumes_only_missing_pairs(tmp_path):
     run_dir = tmp_path / "outputs" / "eval" / "resume"
     command = [sys.executable, "-m", "spidermatch.cli_eval", *SMALL, "synthetic.n_shapes=3", "name=resume"]
     process = subprocess.Popen(command, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     pairs_dir = run_dir / "pairs"
     deadline = time.monotonic() + 300
-    while time.monotonic() < deadline and len(list(pairs_dir.glob("*/result.json"))) < 2:
+    while time.monotonic() < deadline and len(_finished(pairs_dir)) < 2:
         time.sleep(0.2)
         assert process.poll() is None, "evaluation ended before it could be interrupted"
     os.kill(process.pid, signal.SIGKILL)
     process.wait()
-    done_before = {  # the pair in progress has a result.json that says 'started': it runs again
-        p.parent.name: p.stat().st_mtime_ns
-        for p in pairs_dir.glob("*/result.json")
-        if json.loads(p.read_text())["status"] != "started"
-    }
+    done_before = _finished(pairs_dir)  # the pair in progress says 'started' and runs again
     assert 2 <= len(done_before) < 6
     finished = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert finished.returncode == 0, finished.stderr[-2000:]

@@ -162,7 +162,7 @@ def test_02_highs_rejecting_a_value_is_an_error():
 def test_03_vts_with_a_fraction_names_file_and_line(tmp_path):
     path = tmp_path / "a.vts"
     path.write_text("3\n12.7\n5\n")
-    with pytest.raises(MeshError, match=r"a\.vts:2: '12\.7' is not a whole vertex index"):
+    with pytest.raises(MeshError, match=r"a\.vts:2: '12\.7' is not an integer vertex index"):
         read_vts(path, 100)
     path.write_text("3\n12\n5\n")
     assert read_vts(path, 100).tolist() == [2, 11, 4]
