@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from spidermatch.api import BETTER_FEATURES_HINT
 from spidermatch.costs import RobustLoss
 from spidermatch.datasets import DatasetError, SyntheticShapes
 from spidermatch.evaluate import sparse_map_errors
@@ -54,17 +55,15 @@ def load_inputs(cfg) -> MatchInputs:
         target_corr = read_vts(cfg.target_corr, target.n_verts) if cfg.target_corr else None
         if (source_corr is None) != (target_corr is None):
             raise DatasetError("give both source_corr= and target_corr= to evaluate against ground truth")
-        resolution = cfg.resolution or 1000
         return MatchInputs(
-            source, target, source_corr, target_corr, resolution, f"{cfg.source} -> {cfg.target}"
+            source, target, source_corr, target_corr, int(cfg.resolution), f"{cfg.source} -> {cfg.target}"
         )
     data = cfg.data
     shapes = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.source_seed)
     other = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.target_seed)
     x, y = shapes.load(shapes.names[0]), other.load(other.names[0])
-    resolution = cfg.resolution or data.resolution
     return MatchInputs(
-        x.mesh, y.mesh, x.corr, y.corr, resolution, f"built-in synthetic pair {x.name} -> {y.name}"
+        x.mesh, y.mesh, x.corr, y.corr, int(cfg.resolution), f"built-in synthetic pair {x.name} -> {y.name}"
     )
 
 
@@ -114,9 +113,7 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
     extractor = make_extractor(cfg)
     name = getattr(extractor, "name", type(extractor).__name__)
     if name == "wks":
-        logger.info(
-            "features: WKS (no trained checkpoint given; use features=learned features.checkpoint=PATH)"
-        )
+        logger.info("features: WKS (no trained checkpoint given). %s", BETTER_FEATURES_HINT)
     source, target = inputs.source.centred(), inputs.target.centred()
     if hasattr(extractor, "pair_features"):
         feat_x, feat_y = extractor.pair_features(source, target)
@@ -365,8 +362,22 @@ def _hydra_app(run, config_name: str):
     return app
 
 
+def file_run_overrides(overrides: list[str]) -> list[str]:
+    """Command-line overrides with ``data=files`` added when ``source=`` is given without ``data=``.
+
+    The data group decides the default resolution and is saved in ``.hydra/``, so a file
+    run must select it before Hydra composes the config (the defaults list cannot look at
+    ``source``).
+    """
+    keys = {item.split("=", 1)[0].lstrip("+~") for item in overrides if "=" in item}
+    if "source" in keys and "data" not in keys:
+        return [*overrides, "data=files"]
+    return list(overrides)
+
+
 def match_main() -> None:
     """Console entry point of ``spidermatch-match``."""
+    sys.argv[1:] = file_run_overrides(sys.argv[1:])
     _hydra_app(run_match, "match")()
 
 

@@ -15,12 +15,17 @@ import highspy
 import numpy as np
 
 from spidermatch.ilp import IlpModel
+from spidermatch.solve.progress import ProgressLog
 
 logger = logging.getLogger(__name__)
 
 KEEP_IMPROVING = 16  # improving solutions a session keeps (a full-model vector is 30 MB at 1000 faces)
 _PROCESS_THREADS: int | None = None  # HiGHS fixes its thread pool at the first solve of a process
 _STATUS = highspy.HighsModelStatus
+_MIP_CALLBACKS = (
+    highspy.cb.HighsCallbackType.kCallbackMipImprovingSolution,
+    highspy.cb.HighsCallbackType.kCallbackMipInterrupt,
+)
 _STOPPED = {
     _STATUS.kTimeLimit,
     _STATUS.kIterationLimit,
@@ -193,6 +198,8 @@ class HighsSession:
     options : SolverOptions
     relax : bool
         Solve the LP relaxation (x in [0, 1]) instead of the ILP.
+    label : str, optional
+        Names the model in the progress lines logged every few seconds during a run.
 
     Attributes
     ----------
@@ -203,7 +210,13 @@ class HighsSession:
 
     """
 
-    def __init__(self, model: IlpModel, options: SolverOptions | None = None, relax: bool = False) -> None:
+    def __init__(
+        self,
+        model: IlpModel,
+        options: SolverOptions | None = None,
+        relax: bool = False,
+        label: str | None = None,
+    ) -> None:
         self.options = options or SolverOptions()
         self.relax = relax
         self.n_vars = model.n_vars
@@ -214,12 +227,25 @@ class HighsSession:
         _configure(self.highs, self.options)
         _pass_model(self.highs, model, integer=not relax)
         self.improving: list[tuple[float, np.ndarray]] = []
-        if not relax:
-            self.highs.setCallback(self._record_improving, None)
-            self.highs.startCallback(highspy.cb.HighsCallbackType.kCallbackMipImprovingSolution)
+        default_label = "LP relaxation" if relax else f"MIP over {model.n_vars} columns"
+        self.progress = ProgressLog(label or default_label)
+        self.highs.setCallback(self._on_callback, None)
+        kinds = highspy.cb.HighsCallbackType
+        for kind in (kinds.kCallbackSimplexInterrupt,) if relax else _MIP_CALLBACKS:
+            self.highs.startCallback(kind)
 
-    def _record_improving(self, kind, message, data_out, data_in, user_data) -> None:
-        """HiGHS callback: keep a copy of each improving solution."""
+    def _on_callback(self, kind, message, data_out, data_in, user_data) -> None:
+        """HiGHS callback: record improving solutions, log progress every few seconds."""
+        kinds = highspy.cb.HighsCallbackType
+        if kind == kinds.kCallbackMipImprovingSolution:
+            self._record_improving(data_out)
+        elif kind == kinds.kCallbackMipInterrupt:
+            self.progress.mip(data_out)
+        elif kind == kinds.kCallbackSimplexInterrupt:
+            self.progress.simplex(data_out)
+
+    def _record_improving(self, data_out) -> None:
+        """Keep a copy of an improving solution."""
         x = np.array(data_out.mip_solution, dtype=np.float64)
         if x.shape == (self.n_vars,):
             self.improving.append((float(data_out.objective_function_value), x))
