@@ -138,8 +138,14 @@ def write_matches(path: Path, pairs: np.ndarray) -> None:
 def result_summary(result: MatchResult, inputs: MatchInputs, feature_name: str) -> dict:
     """The solver figures, problem size and timings of a match, JSON-ready."""
     summary = result.solve.summary()
+    solved_model = {key: summary.pop(key) for key in ("rows", "nonzeros")}
+    summary.pop("variables")
     summary.update(
         {
+            # the ILP as built (the log's "problem:" line) vs the last model HiGHS solved (for rcfix:
+            # the surviving columns only, plus the connectivity cuts added on the way)
+            "full_model": dict(result.model_size),
+            "solved_model": solved_model,
             "resolution": inputs.resolution,
             "features": feature_name,
             "source_low_res": {"vertices": result.source.mesh.n_verts, "faces": result.source.mesh.n_faces},
