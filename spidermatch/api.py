@@ -204,7 +204,7 @@ def match(
     *,
     features="wks",
     resolution: int | None = None,
-    time_limit: float = DEFAULT_TIME_LIMIT,
+    time_limit: float | None = None,
     mip_rel_gap: float | None = None,
     strategy: str | None = None,
     settings=None,
@@ -221,9 +221,9 @@ def match(
         ``features.learned.LearnedExtractor(checkpoint)``.
     resolution : int, optional
         Faces of both decimated meshes; default 500 for WKS, 1000 otherwise.
-    time_limit : float
-        Solver seconds (default 300); when it stops, the best matching found is returned
-        with status "feasible" and its gap.
+    time_limit : float, optional
+        Solver seconds (default 300, or that of ``settings``); when it stops, the best
+        matching found is returned with status "feasible" and its gap.
     mip_rel_gap : float, optional
         Relative gap at which a matching counts as optimal (default 1e-4).
     strategy : str, optional
@@ -263,8 +263,12 @@ def match(
 
 def _settings(base, feature_name: str, resolution, time_limit, mip_rel_gap, strategy):
     from spidermatch.pipeline import MatchSettings
+    from spidermatch.solve.highs import SolverOptions
 
-    base = base or MatchSettings(resolution=default_resolution(feature_name))
+    if base is None:
+        base = MatchSettings(
+            resolution=default_resolution(feature_name), solver=SolverOptions(time_limit=DEFAULT_TIME_LIMIT)
+        )
     solver = base.solver
     if time_limit is not None:
         solver = dataclasses.replace(solver, time_limit=float(time_limit))

@@ -149,3 +149,16 @@ def test_readme_python_example_runs(pair, tiny_checkpoint, tmp_path, monkeypatch
         namespace: dict = {}
         exec(compile(block, str(README), "exec"), namespace)
         assert namespace["result"].matches.shape[1] == 2
+
+
+def test_settings_defaults_and_precedence():
+    from spidermatch.pipeline import MatchSettings
+
+    wks = api._settings(None, "wks", None, None, None, None)
+    assert (wks.resolution, wks.solver.time_limit) == (api.WKS_RESOLUTION, api.DEFAULT_TIME_LIMIT)
+    assert api._settings(None, "learned", None, None, None, None).resolution == api.LEARNED_RESOLUTION
+    given = api._settings(MatchSettings(resolution=77), "wks", None, None, None, "plain")
+    assert (given.resolution, given.strategy, given.solver.time_limit) == (77, "plain", float("inf"))
+    overridden = api._settings(MatchSettings(resolution=77), "wks", 90, 12.0, 1e-3, None)
+    solver = overridden.solver
+    assert (overridden.resolution, solver.time_limit, solver.mip_rel_gap) == (90, 12.0, 1e-3)
