@@ -7,11 +7,12 @@ from typing import Protocol
 
 import numpy as np
 
-from features.wks import wave_kernel_signature
+from spidermatch.descriptors import WKSExtractor
 from spidermatch.mesh import Mesh
-from spidermatch.operators import cached_operators
 
 logger = logging.getLogger(__name__)
+
+__all__ = ["FeatureExtractor", "WKSExtractor", "extractor_by_name"]
 
 
 class FeatureExtractor(Protocol):
@@ -22,31 +23,6 @@ class FeatureExtractor(Protocol):
     def __call__(self, mesh: Mesh) -> np.ndarray:
         """Return descriptors of shape (V, D), rows L2-normalised."""
         ...
-
-
-class WKSExtractor:
-    """Wave Kernel Signature descriptors on the mesh's own Laplacian eigenpairs.
-
-    Parameters
-    ----------
-    n_descr : int
-        Descriptor dimension D.
-    n_eig : int
-        Number of Laplacian eigenpairs K used.
-
-    """
-
-    name = "wks"
-
-    def __init__(self, n_descr: int = 128, n_eig: int = 128, use_cache: bool = True) -> None:
-        self.n_descr = n_descr
-        self.n_eig = n_eig
-        self.use_cache = use_cache
-
-    def __call__(self, mesh: Mesh) -> np.ndarray:
-        """Return WKS descriptors of shape (V, n_descr)."""
-        ops = cached_operators(mesh, k=self.n_eig, use_cache=self.use_cache)
-        return wave_kernel_signature(ops.evals, ops.evecs, self.n_descr)
 
 
 def extractor_by_name(kind: str, checkpoint: str | None = None, use_cache: bool = True) -> FeatureExtractor:

@@ -1,50 +1,5 @@
-"""Wave Kernel Signature (Aubry, Schlickewei and Cremers, 2011)."""
+"""Wave Kernel Signature: defined in :mod:`spidermatch.descriptors` (pure numpy), re-exported here."""
 
-from __future__ import annotations
+from spidermatch.descriptors import WKSExtractor, normalise_rows, wave_kernel_signature
 
-import numpy as np
-
-
-def wave_kernel_signature(
-    evals: np.ndarray, evecs: np.ndarray, n_descr: int = 128, variance: float = 6.0
-) -> np.ndarray:
-    """Wave Kernel Signature from Laplace-Beltrami eigenpairs, rows L2-normalised.
-
-    Energies are spread evenly in log-eigenvalue between the first non-zero
-    eigenvalue and the largest one; each descriptor is a band-pass filter of
-    the squared eigenfunctions, normalised by its filter's total weight.
-
-    Parameters
-    ----------
-    evals : np.ndarray, shape (K,)
-        Eigenvalues in ascending order; zero (constant) modes are ignored.
-    evecs : np.ndarray, shape (V, K)
-        Mass-orthonormal eigenvectors.
-    n_descr : int
-        Number of energies D.
-    variance : float
-        Filter width in units of the energy spacing.
-
-    Returns
-    -------
-    np.ndarray, shape (V, D)
-
-    """
-    if evals.ndim != 1 or evecs.ndim != 2 or evecs.shape[1] != evals.shape[0]:
-        raise ValueError(f"evals (K,) and evecs (V, K) expected, got {evals.shape} and {evecs.shape}")
-    positive = evals > 1e-9 * max(float(evals.max()), 1e-300)
-    if positive.sum() < 2:
-        raise ValueError("WKS needs at least two non-zero eigenvalues")
-    log_evals = np.log(evals[positive])
-    squared = evecs[:, positive] ** 2
-    energies = np.linspace(log_evals[0], log_evals[-1] / 1.02, n_descr)
-    sigma = variance * (energies[1] - energies[0]) if n_descr > 1 else 1.0
-    filters = np.exp(-((energies[:, None] - log_evals[None, :]) ** 2) / (2 * sigma**2))  # (D, K)
-    descriptors = squared @ filters.T / filters.sum(axis=1)[None, :]
-    return normalise_rows(descriptors)
-
-
-def normalise_rows(features: np.ndarray) -> np.ndarray:
-    """L2-normalise each row of a (V, D) array (zero rows stay zero)."""
-    norms = np.linalg.norm(features, axis=1, keepdims=True)
-    return features / np.maximum(norms, 1e-12)
+__all__ = ["WKSExtractor", "normalise_rows", "wave_kernel_signature"]

@@ -40,13 +40,19 @@ SUMMARY_COLUMNS = (
 def select_pairs(
     names: list[str], all_pairs: list[tuple[str, str]], n_pairs: int | None = None, seed: int = 0
 ) -> list[tuple[str, str]]:
-    """``n_pairs`` ordered pairs drawn without replacement (seeded), or all of ``all_pairs``."""
+    """The first ``n_pairs`` of a fixed seeded order of ``all_pairs`` (all of them by default).
+
+    The order is one seeded permutation of all pairs, so a larger ``n_pairs`` extends a smaller
+    one with the same seed: ``n_pairs=3`` matches the pairs of ``n_pairs=2`` plus one more,
+    and a resumed run re-uses their results. The chosen pairs are returned in the order of
+    ``all_pairs``.
+    """
     if n_pairs is None or n_pairs >= len(all_pairs):
         return list(all_pairs)
     if n_pairs < 1:
         raise DatasetError(f"n_pairs must be at least 1, got {n_pairs}")
-    chosen = np.random.default_rng(seed).choice(len(all_pairs), size=n_pairs, replace=False)
-    return [all_pairs[i] for i in sorted(chosen)]
+    order = np.random.default_rng(seed).permutation(len(all_pairs))
+    return [all_pairs[i] for i in sorted(order[:n_pairs])]
 
 
 def pair_dir(run_dir: Path, source: str, target: str) -> Path:

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from spidermatch import guard
+from spidermatch.api import BETTER_FEATURES_HINT
 from spidermatch.costs import RobustLoss
 from spidermatch.datasets import DatasetError, SyntheticShapes
 from spidermatch.evaluate import sparse_map_errors
@@ -64,17 +65,15 @@ def load_inputs(cfg) -> MatchInputs:
         if (source_corr is None) != (target_corr is None):
             raise DatasetError("give both source_corr= and target_corr= to evaluate against ground truth")
         check_ground_truth(source_corr, target_corr, cfg.source_corr, cfg.target_corr)
-        resolution = 1000 if cfg.resolution is None else cfg.resolution
         return MatchInputs(
-            source, target, source_corr, target_corr, resolution, f"{cfg.source} -> {cfg.target}"
+            source, target, source_corr, target_corr, int(cfg.resolution), f"{cfg.source} -> {cfg.target}"
         )
     data = cfg.data
     shapes = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.source_seed)
     other = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.target_seed)
     x, y = shapes.load(shapes.names[0]), other.load(other.names[0])
-    resolution = data.resolution if cfg.resolution is None else cfg.resolution
     return MatchInputs(
-        x.mesh, y.mesh, x.corr, y.corr, resolution, f"built-in synthetic pair {x.name} -> {y.name}"
+        x.mesh, y.mesh, x.corr, y.corr, int(cfg.resolution), f"built-in synthetic pair {x.name} -> {y.name}"
     )
 
 
@@ -124,9 +123,7 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
     extractor = make_extractor(cfg)
     name = getattr(extractor, "name", type(extractor).__name__)
     if name == "wks":
-        logger.info(
-            "features: WKS (no trained checkpoint given; use features=learned features.checkpoint=PATH)"
-        )
+        logger.info("features: WKS (no trained checkpoint given). %s", BETTER_FEATURES_HINT)
     source, target = inputs.source.centred(), inputs.target.centred()
     if hasattr(extractor, "pair_features"):
         feat_x, feat_y = extractor.pair_features(source, target)
@@ -147,8 +144,14 @@ def write_matches(path: Path, pairs: np.ndarray) -> None:
 def result_summary(result: MatchResult, inputs: MatchInputs, feature_name: str) -> dict:
     """The solver figures, problem size and timings of a match, JSON-ready."""
     summary = result.solve.summary()
+    solved_model = {key: summary.pop(key) for key in ("rows", "nonzeros")}
+    summary.pop("variables")
     summary.update(
         {
+            # the ILP as built (the log's "problem:" line) vs the last model HiGHS solved (for rcfix:
+            # the surviving columns only, plus the connectivity cuts added on the way)
+            "full_model": dict(result.model_size),
+            "solved_model": solved_model,
             "resolution": inputs.resolution,
             "features": feature_name,
             "source_low_res": {"vertices": result.source.mesh.n_verts, "faces": result.source.mesh.n_faces},
@@ -497,10 +500,24 @@ def _hydra_app(run, config_name: str):
     return app
 
 
+def file_run_overrides(overrides: list[str]) -> list[str]:
+    """Command-line overrides with ``data=files`` added when ``source=`` is given without ``data=``.
+
+    The data group decides the default resolution and is saved in ``.hydra/``, so a file
+    run must select it before Hydra composes the config (the defaults list cannot look at
+    ``source``).
+    """
+    keys = {item.split("=", 1)[0].lstrip("+~") for item in overrides if "=" in item}
+    if "source" in keys and "data" not in keys:
+        return [*overrides, "data=files"]
+    return list(overrides)
+
+
 def match_main() -> None:
     """Console entry point of ``spidermatch-match``."""
     from spidermatch.cli_options import exit_on_bad_command_line
 
+    sys.argv[1:] = file_run_overrides(sys.argv[1:])
     exit_on_bad_command_line("match", sys.argv[1:])
     _hydra_app(run_match, "match")()
 

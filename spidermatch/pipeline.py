@@ -109,6 +109,10 @@ class MatchResult:
     check : CheckReport or None
     timings : dict
         Seconds per stage.
+    model_size : dict
+        ``variables``, ``rows``, ``nonzeros`` of the full ILP as built (before any column is
+        dropped or connectivity cut added; ``solve.n_rows`` and ``solve.nnz`` describe the
+        last model HiGHS solved instead).
 
     """
 
@@ -121,6 +125,7 @@ class MatchResult:
     low_map: np.ndarray | None = None
     check: CheckReport | None = None
     timings: dict = field(default_factory=dict)
+    model_size: dict = field(default_factory=dict)
 
     @property
     def full_pairs(self) -> np.ndarray:
@@ -189,7 +194,8 @@ def prepare(
     with _stage(timings, "build"):
         model = build_model(graph, curve, costs, tuple(settings.constraints))
     logger.info(
-        "problem: %d source / %d target vertices, curve length %d, %d variables, %d rows, %d non-zeros",
+        "problem: %d source / %d target vertices, curve length %d; "
+        "full model: %d variables, %d rows, %d non-zeros",
         low_x.mesh.n_verts,
         low_y.mesh.n_verts,
         curve.length,
@@ -250,6 +256,7 @@ def match(
         solved.gap,
     )
     result = MatchResult(low_x, low_y, curve, graph, solved, timings=timings)
+    result.model_size = {"variables": model.n_vars, "rows": model.n_rows, "nonzeros": model.nnz}
     if solved.x is not None:
         with _stage(timings, "check"):
             _read_solution(result, tuple(settings.constraints))

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 import trimesh
+from hydra import compose, initialize_config_module
 
 from spidermatch.mesh import Mesh
 
@@ -39,3 +40,28 @@ def random_rotation(rng) -> np.ndarray:
     if np.linalg.det(q) < 0:
         q[:, 0] = -q[:, 0]
     return q
+
+
+@pytest.fixture(scope="session")
+def tiny_checkpoint(tmp_path_factory):
+    import train.cli  # noqa: F401  (registers the training schema)
+    from train.cli import to_train_config
+    from train.loop import train
+
+    overrides = [
+        "data.synthetic_shapes=4",
+        "data.synthetic_verts=300",
+        "data.val_points=30",
+        "model.width=8",
+        "model.n_blocks=1",
+        "model.out_channels=16",
+        "loss.n_fmap=12",
+        "run.n_steps=2",
+        "run.val_every=2",
+        "run.progress=false",
+    ]
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        cfg = compose(config_name="train", overrides=overrides)
+    folder = tmp_path_factory.mktemp("train")
+    train(to_train_config(cfg), folder)
+    return folder / "best.pt"

@@ -28,6 +28,16 @@ def test_select_pairs_is_seeded():
     assert select_pairs(names, pairs) == pairs
 
 
+def test_more_pairs_extend_fewer_pairs():
+    names = [f"s{i}" for i in range(6)]
+    pairs = [(x, y) for x in names for y in names if x != y]
+    for seed in (0, 1, 7):
+        chosen = [set(select_pairs(names, pairs, n, seed=seed)) for n in range(1, len(pairs) + 1)]
+        assert all(small < large for small, large in zip(chosen, chosen[1:]))
+        assert all(len(c) == n for n, c in enumerate(chosen, start=1))
+    assert select_pairs(names, pairs, 5, seed=0) != select_pairs(names, pairs, 5, seed=1)
+
+
 def test_broken_mesh_is_reported_and_other_pairs_complete(tmp_path):
     root = write_dataset(SyntheticShapes(n_shapes=3, n_verts=700), tmp_path / "data")
     (root / "off" / "creature_002.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 9\n")

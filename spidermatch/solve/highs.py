@@ -18,6 +18,7 @@ import numpy as np
 
 from spidermatch import guard
 from spidermatch.ilp import IlpModel
+from spidermatch.solve.progress import ProgressLog
 
 logger = logging.getLogger(__name__)
 
@@ -213,6 +214,8 @@ class HighsSession:
     options : SolverOptions
     relax : bool
         Solve the LP relaxation (x in [0, 1]) instead of the ILP.
+    label : str, optional
+        Names the model in the progress lines logged every few seconds during a run.
 
     Attributes
     ----------
@@ -223,7 +226,13 @@ class HighsSession:
 
     """
 
-    def __init__(self, model: IlpModel, options: SolverOptions | None = None, relax: bool = False) -> None:
+    def __init__(
+        self,
+        model: IlpModel,
+        options: SolverOptions | None = None,
+        relax: bool = False,
+        label: str | None = None,
+    ) -> None:
         self.options = options or SolverOptions()
         self.relax = relax
         self.n_vars = model.n_vars
@@ -234,21 +243,31 @@ class HighsSession:
         _configure(self.highs, self.options)
         _pass_model(self.highs, model, integer=not relax)
         self.improving: list[tuple[float, np.ndarray]] = []
-        self.progress = (math.inf, -math.inf)  # (incumbent, dual bound) at HiGHS's last MIP callback
-        self.highs.setCallback(self._callback, None)
+        self.last_mip = (math.inf, -math.inf)  # (incumbent, dual bound) at HiGHS's last MIP callback
+        default_label = "LP relaxation" if relax else f"MIP over {model.n_vars} columns"
+        self.progress = ProgressLog(label or default_label)
+        self.highs.setCallback(self._on_callback, None)
         for kind in _INTERRUPT_CALLBACKS:
             self.highs.startCallback(kind)
         if not relax:
             self.highs.startCallback(highspy.cb.HighsCallbackType.kCallbackMipImprovingSolution)
 
-    def _callback(self, kind, message, data_out, data_in, user_data) -> None:
-        """HiGHS callback: stop on a signal (see :mod:`spidermatch.guard`), record progress."""
-        if kind in _INTERRUPT_CALLBACKS:
-            if kind == highspy.cb.HighsCallbackType.kCallbackMipInterrupt:
-                self.progress = (float(data_out.mip_primal_bound), float(data_out.mip_dual_bound))
-            if guard.stop_requested() or _CANCEL.is_set():
-                data_in.user_interrupt = True
+    def _on_callback(self, kind, message, data_out, data_in, user_data) -> None:
+        """HiGHS callback: record improving solutions, log progress, stop on a signal (:mod:`guard`)."""
+        kinds = highspy.cb.HighsCallbackType
+        if kind == kinds.kCallbackMipImprovingSolution:
+            self._record_improving(data_out)
             return
+        if kind == kinds.kCallbackMipInterrupt:
+            self.last_mip = (float(data_out.mip_primal_bound), float(data_out.mip_dual_bound))
+            self.progress.mip(data_out)
+        elif kind == kinds.kCallbackSimplexInterrupt:
+            self.progress.simplex(data_out)
+        if guard.stop_requested() or _CANCEL.is_set():
+            data_in.user_interrupt = True
+
+    def _record_improving(self, data_out) -> None:
+        """Keep a copy of an improving solution."""
         x = np.array(data_out.mip_solution, dtype=np.float64)
         if x.shape == (self.n_vars,):
             self.improving.append((float(data_out.objective_function_value), x))
@@ -278,7 +297,7 @@ class HighsSession:
         """Incumbent and certified bound of the running MIP, from HiGHS's last callback."""
         if self.relax:
             return {"incumbent_objective": None, "bound": None, "gap": None, "solver_message": "LP running"}
-        incumbent, dual = self.progress
+        incumbent, dual = self.last_mip
         bound = certified_mip_bound(dual, incumbent, self.options.mip_rel_gap)
         return {
             "incumbent_objective": _finite_or_none(incumbent),

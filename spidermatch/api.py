@@ -1,0 +1,304 @@
+"""``spidermatch.match``: the Python entry point for notebooks and scripts.
+
+Takes two meshes in any common form (file paths, ``trimesh.Trimesh`` objects, ``(V, F)``
+array pairs or :class:`~spidermatch.mesh.Mesh`), computes their features, runs the
+certified SpiderMatch pipeline and returns a :class:`Matching` of plain numpy arrays.
+
+Direction convention
+--------------------
+Every map goes **from the source to the target**. ``matches[k] = (i, j)`` says source
+vertex ``i`` corresponds to target vertex ``j``; ``dense_map[i] = j`` (shape (V_src,)) does
+the same for every source vertex (``src_to_tgt``). In pyFM's and geomfum's naming this is
+``p2p_12`` with mesh 1 the source: indexed by source vertices, holding target vertices.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from spidermatch.mesh import Mesh, MeshError, make_mesh
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_TIME_LIMIT = 300.0
+"""Seconds a default match may spend in the solver; when it stops, the incumbent and its gap are returned."""
+
+WKS_RESOLUTION = 500
+"""Default faces with WKS features (FAUST_r pairs certify in seconds to about two minutes there)."""
+
+LEARNED_RESOLUTION = 1000
+"""Default faces with learned (or any other) features."""
+
+BETTER_FEATURES_HINT = (
+    "WKS cannot tell left from right, which makes the problem hard and the matching prone to "
+    "symmetric flips; for better features train a network (spidermatch-train) and match with "
+    "features=learned checkpoint=PATH (Python: features=LearnedExtractor(PATH) from features.learned)"
+)
+
+
+def default_resolution(feature_name: str) -> int:
+    """Faces of both decimated meshes when none is given: smaller for WKS, whose ILP is harder."""
+    return WKS_RESOLUTION if feature_name == "wks" else LEARNED_RESOLUTION
+
+
+@dataclass(frozen=True, eq=False)
+class Matching:
+    """The result of :func:`match`; every map goes source -> target.
+
+    Attributes
+    ----------
+    matches : np.ndarray, shape (N, 2), int64, or None
+        ``(source vertex, target vertex)`` pairs, 0-based indices into the full-resolution
+        input meshes, one row per vertex of the decimated source (N of them): the matching
+        the solver certified. None when the solver found no matching.
+    dense_map : np.ndarray, shape (V_src,), int64, or None
+        Target vertex for every source vertex (``src_to_tgt``), when the pipeline computes a
+        dense map; None otherwise. ``p2p`` is the same array.
+    status : str
+        "optimal" (certified within ``mip_rel_gap``), "feasible" (stopped early with a
+        matching that is not proven optimal), "infeasible", "no_solution" or "error".
+    objective, bound, gap : float or None
+        The matching's cost, the certified lower bound on every matching's cost, and their
+        relative gap (None when undefined).
+    resolution : int
+        Faces of both decimated meshes.
+    features : str
+        Name of the features used ("wks", "learned", "precomputed", ...).
+    timings : dict of str to float
+        Seconds per stage ("features", "decimate", "curve", "costs", "build", "solve", "check").
+    details : spidermatch.pipeline.MatchResult
+        Everything else: the decimated meshes, the SpiderCurve, the solver's full report.
+
+    """
+
+    matches: np.ndarray | None
+    dense_map: np.ndarray | None
+    status: str
+    objective: float | None
+    bound: float | None
+    gap: float | None
+    resolution: int
+    features: str
+    timings: dict = field(default_factory=dict)
+    details: object = field(default=None, repr=False)
+
+    @property
+    def proven_optimal(self) -> bool:
+        """True if no matching has a lower cost than ``objective`` (within the relative gap)."""
+        return self.status == "optimal"
+
+    @property
+    def p2p(self) -> np.ndarray | None:
+        """The dense map, source -> target, shape (V_src,) (the pyFM/geomfum name)."""
+        return self.dense_map
+
+    def __repr__(self) -> str:
+        n = 0 if self.matches is None else len(self.matches)
+        gap = "n/a" if self.gap is None else f"{self.gap:.2e}"
+        return (
+            f"Matching(status={self.status!r}, {n} matches, objective={self.objective}, gap={gap}, "
+            f"resolution={self.resolution}, features={self.features!r})"
+        )
+
+
+def as_mesh(shape, role: str) -> Mesh:
+    """A validated :class:`Mesh` from a path, a trimesh object, a (V, F) pair or a Mesh.
+
+    Parameters
+    ----------
+    shape : str, os.PathLike, trimesh.Trimesh, tuple (verts (V, 3), faces (F, 3)) or Mesh
+    role : str
+        "source" or "target", named in error messages of in-memory meshes.
+
+    Raises
+    ------
+    MeshError
+        The mesh is missing, unreadable or not a single manifold triangle surface.
+    TypeError
+        ``shape`` is none of the accepted kinds.
+
+    """
+    if isinstance(shape, Mesh):
+        return shape
+    if isinstance(shape, (str, os.PathLike)):
+        from spidermatch.io import load_mesh
+
+        return load_mesh(shape)
+    if isinstance(shape, (tuple, list)) and len(shape) == 2:
+        return _from_arrays(shape[0], shape[1], f"{role} mesh (V, F) arrays")
+    if hasattr(shape, "vertices") and hasattr(shape, "faces"):
+        return _from_arrays(shape.vertices, shape.faces, f"{role} mesh ({type(shape).__name__})")
+    raise TypeError(
+        f"{role}: expected a mesh file path, a trimesh.Trimesh, a (verts, faces) pair or a "
+        f"spidermatch Mesh, got {type(shape).__name__}"
+    )
+
+
+def _from_arrays(verts, faces, name: str) -> Mesh:
+    try:
+        verts, faces = np.asarray(verts), np.asarray(faces)
+    except ValueError as error:  # ragged nested lists
+        raise MeshError(f"{name}: not rectangular arrays ({error})") from None
+    if faces.dtype.kind == "f" and faces.size and np.array_equal(faces, np.round(faces)):
+        faces = faces.astype(np.int64)  # integral floats, e.g. from a loaded text file
+    return make_mesh(verts, faces, name)
+
+
+def pair_features(features, source: Mesh, target: Mesh) -> tuple[np.ndarray, np.ndarray, str]:
+    """Features of both meshes (centred) and their name, from ``features`` as :func:`match` takes it.
+
+    Parameters
+    ----------
+    features : "wks", an extractor, or a pair (source (V_src, D), target (V_tgt, D)) of arrays
+        An extractor is any callable ``mesh -> (V, D)``; one with ``pair_features(source,
+        target)`` (test-time adaptation) is asked for both at once.
+    source, target : Mesh
+
+    Returns
+    -------
+    source_features : np.ndarray, shape (V_src, D)
+    target_features : np.ndarray, shape (V_tgt, D)
+    name : str
+
+    """
+    if isinstance(features, str):
+        features = _extractor_by_name(features)
+    if isinstance(features, (tuple, list)) and len(features) == 2:
+        return np.asarray(features[0]), np.asarray(features[1]), "precomputed"
+    if not callable(features):
+        raise TypeError(
+            "features: expected 'wks', an extractor (e.g. features.learned.LearnedExtractor(checkpoint)) "
+            f"or a pair of (V, D) arrays, got {type(features).__name__}"
+        )
+    name = str(getattr(features, "name", type(features).__name__))
+    centred_x, centred_y = source.centred(), target.centred()
+    if hasattr(features, "pair_features"):
+        feat_x, feat_y = features.pair_features(centred_x, centred_y)
+    else:
+        feat_x, feat_y = features(centred_x), features(centred_y)
+    return np.asarray(feat_x), np.asarray(feat_y), name
+
+
+def _extractor_by_name(name: str):
+    if name == "wks":
+        from spidermatch.descriptors import WKSExtractor
+
+        return WKSExtractor()
+    if name == "learned":
+        raise ValueError(
+            "features='learned' needs the network: pass features=LearnedExtractor(checkpoint) "
+            "(from features.learned import LearnedExtractor; it needs PyTorch)"
+        )
+    raise ValueError(f"unknown features {name!r}: give 'wks', an extractor or a pair of (V, D) arrays")
+
+
+def match(
+    source,
+    target,
+    *,
+    features="wks",
+    resolution: int | None = None,
+    time_limit: float | None = None,
+    mip_rel_gap: float | None = None,
+    strategy: str | None = None,
+    settings=None,
+    strict: bool = True,
+) -> Matching:
+    """Match ``source`` to ``target`` with SpiderMatch and return a certified :class:`Matching`.
+
+    Parameters
+    ----------
+    source, target : path, trimesh.Trimesh, (verts (V, 3), faces (F, 3)) or Mesh
+        One connected manifold triangle surface each.
+    features : "wks", extractor, or (source (V_src, D), target (V_tgt, D)) arrays
+        Per-vertex descriptors. "wks" needs no training; learned features come as
+        ``features.learned.LearnedExtractor(checkpoint)``.
+    resolution : int, optional
+        Faces of both decimated meshes; default 500 for WKS, 1000 otherwise.
+    time_limit : float, optional
+        Solver seconds (default 300, or that of ``settings``); when it stops, the best
+        matching found is returned with status "feasible" and its gap.
+    mip_rel_gap : float, optional
+        Relative gap at which a matching counts as optimal (default 1e-4).
+    strategy : str, optional
+        "rcfix" (default) or "plain".
+    settings : spidermatch.pipeline.MatchSettings, optional
+        Every other option (costs, curve, decimation); the keywords above take precedence.
+    strict : bool
+        Raise :class:`~spidermatch.pipeline.MatchError` (``InfeasibleError``,
+        ``NoSolutionError``, ``SolverFailure``) when there is no checked matching; with
+        False, return the :class:`Matching` with ``matches=None`` instead.
+
+    Returns
+    -------
+    Matching
+        ``matches`` (N, 2) source -> target vertex pairs; ``dense_map`` (V_src,) when available.
+
+    Raises
+    ------
+    MeshError, ValueError, TypeError
+        Bad meshes or features, with a message naming the mesh and the problem.
+
+    """
+    from spidermatch.pipeline import match as run_pipeline
+
+    source_mesh, target_mesh = as_mesh(source, "source"), as_mesh(target, "target")
+    started = time.perf_counter()
+    feat_x, feat_y, name = pair_features(features, source_mesh, target_mesh)
+    feature_time = time.perf_counter() - started
+    if name == "wks":
+        logger.info("features: WKS. %s", BETTER_FEATURES_HINT)
+    run_settings = _settings(settings, name, resolution, time_limit, mip_rel_gap, strategy)
+    result = run_pipeline(source_mesh, target_mesh, feat_x, feat_y, run_settings)
+    if strict:
+        result.raise_for_status()
+    return _matching(result, name, run_settings.resolution, {"features": feature_time, **result.timings})
+
+
+def _settings(base, feature_name: str, resolution, time_limit, mip_rel_gap, strategy):
+    from spidermatch.pipeline import MatchSettings
+    from spidermatch.solve.highs import SolverOptions
+
+    if base is None:
+        base = MatchSettings(
+            resolution=default_resolution(feature_name), solver=SolverOptions(time_limit=DEFAULT_TIME_LIMIT)
+        )
+    solver = base.solver
+    if time_limit is not None:
+        solver = dataclasses.replace(solver, time_limit=float(time_limit))
+    if mip_rel_gap is not None:
+        solver = dataclasses.replace(solver, mip_rel_gap=float(mip_rel_gap))
+    changes = {"solver": solver}
+    if resolution is not None:
+        changes["resolution"] = int(resolution)
+    if strategy is not None:
+        changes["strategy"] = str(strategy)
+    return dataclasses.replace(base, **changes)
+
+
+def _matching(result, feature_name: str, resolution: int, timings: dict) -> Matching:
+    summary = result.solve.summary()
+    matches = result.full_pairs.astype(np.int64) if result.low_map is not None and result.check.ok else None
+    dense = getattr(result, "dense_map", None)
+    if matches is not None and not result.solve.proven_optimal:
+        logger.warning(
+            "the solver stopped early: this matching is NOT proven optimal (gap %s)", summary["gap"]
+        )
+    return Matching(
+        matches=matches,
+        dense_map=None if dense is None else np.asarray(dense, dtype=np.int64),
+        status=summary["status"],
+        objective=summary["objective"],
+        bound=summary["bound"],
+        gap=summary["gap"],
+        resolution=resolution,
+        features=feature_name,
+        timings=timings,
+        details=result,
+    )

@@ -1,0 +1,81 @@
+"""Progress of a HiGHS solve as a log line every few seconds, without HiGHS's own log.
+
+HiGHS calls its interrupt callbacks many times a second during simplex and branch and
+bound; :class:`ProgressLog` turns them into at most one INFO line per ``interval`` seconds:
+incumbent, bound and gap for a MIP, the iteration count for an LP, and the elapsed time.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+logger = logging.getLogger(__name__)
+
+PROGRESS_INTERVAL = 5.0  # seconds between two progress lines
+
+
+def format_value(value: float) -> str:
+    """A solver figure for the log: HiGHS reports "no incumbent" as +-inf."""
+    return f"{value:.6g}" if math.isfinite(value) and abs(value) < 1e30 else "none"
+
+
+def format_gap(incumbent: float, bound: float) -> str:
+    """The relative gap (incumbent - bound) / |incumbent| in percent, or "n/a"."""
+    if not (math.isfinite(incumbent) and math.isfinite(bound)) or max(abs(incumbent), abs(bound)) >= 1e30:
+        return "n/a"
+    return f"{100.0 * max(incumbent - bound, 0.0) / max(abs(incumbent), 1e-300):.2f} %"
+
+
+class ProgressLog:
+    """Rate-limited progress lines for one HiGHS model.
+
+    Parameters
+    ----------
+    label : str
+        What is being solved ("MIP over 12345 columns", "LP relaxation"), at the start of each line.
+    interval : float
+        Minimum seconds between two lines; the first comes after ``interval`` seconds, so
+        solves shorter than that stay silent.
+
+    """
+
+    def __init__(self, label: str, interval: float = PROGRESS_INTERVAL) -> None:
+        self.label = label
+        self.interval = interval
+        self.started = time.perf_counter()
+        self.last = self.started
+
+    def _due(self) -> float | None:
+        """Elapsed seconds if a line is due now, else None."""
+        now = time.perf_counter()
+        if now - self.last < self.interval:
+            return None
+        self.last = now
+        return now - self.started
+
+    def mip(self, data_out) -> None:
+        """Called from HiGHS's MIP interrupt callback (``data_out``: its ``HighsCallbackOutput``)."""
+        elapsed = self._due()
+        if elapsed is None:
+            return
+        incumbent, bound = float(data_out.mip_primal_bound), float(data_out.mip_dual_bound)
+        logger.info(
+            "%s: incumbent %s, bound %s, gap %s, %d nodes, %.0f s",
+            self.label,
+            format_value(incumbent),
+            format_value(bound),
+            format_gap(incumbent, bound),
+            int(data_out.mip_node_count),
+            elapsed,
+        )
+
+    def simplex(self, data_out) -> None:
+        """Called from HiGHS's simplex interrupt callback."""
+        elapsed = self._due()
+        if elapsed is None:
+            return
+        logger.info(
+            "%s: %d simplex iterations, %.0f s", self.label, int(data_out.simplex_iteration_count), elapsed
+        )

@@ -1,0 +1,167 @@
+import re
+import shutil
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+import spidermatch
+from spidermatch import api
+from spidermatch.datasets import SyntheticShapes
+from spidermatch.descriptors import WKSExtractor
+from spidermatch.evaluate import sparse_map_errors
+from spidermatch.io import save_mesh
+from spidermatch.mesh import MeshError
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+RESOLUTION = 60
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory):
+    """Two synthetic creatures with different vertex counts (~700, ~900), as files and shapes."""
+    folder = tmp_path_factory.mktemp("api_pair")
+    small, large = (
+        SyntheticShapes(n_shapes=1, n_verts=700, seed=0),
+        SyntheticShapes(n_shapes=1, n_verts=900, seed=1),
+    )
+    x, y = small.load(small.names[0]), large.load(large.names[0])
+    save_mesh(x.mesh, folder / "source.off")
+    save_mesh(y.mesh, folder / "target.off")
+    return types.SimpleNamespace(x=x, y=y, source=folder / "source.off", target=folder / "target.off")
+
+
+@pytest.fixture(scope="module")
+def from_paths(pair):
+    return spidermatch.match(str(pair.source), pair.target, resolution=RESOLUTION)
+
+
+def error_of(matches, source, target) -> float:
+    return sparse_map_errors(
+        matches[:, 0], matches[:, 1], source.mesh, source.corr, target.corr, target.mesh
+    ).mean
+
+
+def test_result_fields_and_direction(pair, from_paths):
+    result = from_paths
+    assert result.status == "optimal" and result.proven_optimal
+    assert result.bound <= result.objective + 1e-9 and 0 <= result.gap <= 1e-4
+    n_low = result.details.source.mesh.n_verts
+    assert result.matches.dtype == np.int64 and result.matches.shape == (n_low, 2)
+    # column 0 indexes the source (~700 vertices), column 1 the target (~900 vertices)
+    assert np.unique(result.matches[:, 0]).size == len(result.matches)
+    assert result.matches[:, 0].max() < pair.x.mesh.n_verts
+    assert result.matches[:, 1].max() < pair.y.mesh.n_verts
+    assert error_of(result.matches, pair.x, pair.y) < 0.3  # read the other way round it would be ~random
+    assert result.resolution == RESOLUTION and result.features == "wks"
+    assert {"features", "decimate", "solve", "check"} <= set(result.timings)
+    assert result.dense_map is None and result.p2p is None  # no dense map in this pipeline yet
+
+
+def test_reversed_pair_swaps_the_roles(pair):
+    result = spidermatch.match(pair.target, pair.source, resolution=RESOLUTION)
+    assert result.matches[:, 0].max() < pair.y.mesh.n_verts
+    assert result.matches[:, 1].max() < pair.x.mesh.n_verts
+    assert error_of(result.matches, pair.y, pair.x) < 0.3
+
+
+def test_trimesh_arrays_and_precomputed_features_give_the_same_matching(pair, from_paths):
+    loaded = trimesh.load(pair.source, process=False)
+    arrays = (pair.y.mesh.verts, pair.y.mesh.faces)
+    assert np.array_equal(
+        spidermatch.match(loaded, arrays, resolution=RESOLUTION).matches, from_paths.matches
+    )
+    wks = WKSExtractor()
+    features = (wks(pair.x.mesh.centred()), wks(pair.y.mesh.centred()))
+    result = spidermatch.match(pair.x.mesh, pair.y.mesh, features=features, resolution=RESOLUTION)
+    assert result.features == "precomputed" and np.array_equal(result.matches, from_paths.matches)
+
+
+def test_bad_inputs_are_clear_errors(pair, tmp_path):
+    with pytest.raises(MeshError, match="nope.off: no such file"):
+        spidermatch.match(tmp_path / "nope.off", pair.target)
+    faces = np.array([[0, 1, 2], [0, 2, 7]])
+    with pytest.raises(MeshError, match=r"target mesh \(V, F\) arrays"):
+        spidermatch.match(pair.source, (np.eye(3), faces))
+    with pytest.raises(TypeError, match="source: expected a mesh file path"):
+        spidermatch.match(42, pair.target)
+    with pytest.raises(ValueError, match="LearnedExtractor"):
+        spidermatch.match(pair.source, pair.target, features="learned")
+    n_x, n_y = pair.x.mesh.n_verts, pair.y.mesh.n_verts
+    with pytest.raises(ValueError, match=rf"source features must have shape \({n_x}, D\)"):
+        spidermatch.match(pair.source, pair.target, features=(np.ones((5, 3)), np.ones((n_y, 3))))
+
+
+def test_dense_map_is_exposed_when_the_pipeline_has_one(from_paths):
+    details = from_paths.details
+    dense = np.arange(details.source.to_full.max() + 1)[::-1]
+    with_dense = types.SimpleNamespace(
+        solve=details.solve, low_map=details.low_map, check=details.check, full_pairs=details.full_pairs
+    )
+    with_dense.dense_map = dense
+    matching = api._matching(with_dense, "wks", RESOLUTION, {})
+    assert np.array_equal(matching.dense_map, dense) and matching.p2p is matching.dense_map
+
+
+def test_defaults_agree_with_the_command_line_config():
+    from hydra import compose, initialize_config_module
+
+    def composed(*overrides):
+        with initialize_config_module(config_module="conf", version_base="1.3"):
+            return compose(
+                config_name="match", overrides=["source=a.off", "target=b.off", "data=files", *overrides]
+            )
+
+    assert composed().resolution == api.default_resolution("wks") == api.WKS_RESOLUTION
+    assert composed("features=learned").resolution == api.default_resolution("learned")
+    assert composed().solver.time_limit == api.DEFAULT_TIME_LIMIT
+
+
+def test_import_spidermatch_loads_neither_torch_nor_features():
+    code = (
+        "import sys, spidermatch; from spidermatch import match; "
+        "import spidermatch.api, spidermatch.pipeline, spidermatch.descriptors, spidermatch.cli; "
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'features', 'train')))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
+def readme_python_blocks() -> list[str]:
+    text = README.read_text()
+    section = text[text.index("## Python API") :]
+    section = section[: section.index("\n## ", 1)]
+    return re.findall(r"```python\n(.*?)```", section, flags=re.S)
+
+
+def test_readme_python_example_runs(pair, tiny_checkpoint, tmp_path, monkeypatch):
+    blocks = readme_python_blocks()
+    assert len(blocks) >= 2 and "spidermatch.match(" in blocks[0]
+    for name in ("source.off", "target.off"):
+        shutil.copy(getattr(pair, name.split(".")[0]), tmp_path / name)
+    shutil.copy(tiny_checkpoint, tmp_path / "best.pt")
+    monkeypatch.chdir(tmp_path)
+    # the README's defaults are for FAUST-sized meshes; these small ones are matched at RESOLUTION faces
+    monkeypatch.setattr(api, "WKS_RESOLUTION", RESOLUTION)
+    monkeypatch.setattr(api, "LEARNED_RESOLUTION", RESOLUTION)
+    for block in blocks:
+        namespace: dict = {}
+        exec(compile(block, str(README), "exec"), namespace)
+        assert namespace["result"].matches.shape[1] == 2
+
+
+def test_settings_defaults_and_precedence():
+    from spidermatch.pipeline import MatchSettings
+
+    wks = api._settings(None, "wks", None, None, None, None)
+    assert (wks.resolution, wks.solver.time_limit) == (api.WKS_RESOLUTION, api.DEFAULT_TIME_LIMIT)
+    assert api._settings(None, "learned", None, None, None, None).resolution == api.LEARNED_RESOLUTION
+    given = api._settings(MatchSettings(resolution=77), "wks", None, None, None, "plain")
+    assert (given.resolution, given.strategy, given.solver.time_limit) == (77, "plain", float("inf"))
+    overridden = api._settings(MatchSettings(resolution=77), "wks", 90, 12.0, 1e-3, None)
+    solver = overridden.solver
+    assert (overridden.resolution, solver.time_limit, solver.mip_rel_gap) == (90, 12.0, 1e-3)
