@@ -188,6 +188,10 @@ def test_bad_checkpoints_are_reported(tmp_path, shapes):
         load_checkpoint_into(tmp_path / "good.pt", new_state(other), other)
     longer = tiny_config(n_steps=50, val_every=7)  # run length may change on resume
     load_checkpoint_into(tmp_path / "good.pt", new_state(longer), longer)
+    older = torch.load(tmp_path / "good.pt", weights_only=True)  # written before a key existed
+    del older["config"]["data"]["val_pairs"], older["config"]["optim"]["schedule"]
+    torch.save(older, tmp_path / "older.pt")
+    load_checkpoint_into(tmp_path / "older.pt", new_state(config), config)
 
 
 def test_validator_agrees_with_the_evaluation_module():

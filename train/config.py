@@ -193,12 +193,15 @@ class TrainConfig:
 def incompatibilities(current: dict[str, Any], stored: dict[str, Any]) -> list[str]:
     """Settings that differ between a run's config and a checkpoint's, as ``key: a != b``.
 
-    Only :data:`COMPATIBLE_SECTIONS` are compared, without the relocatable data keys.
+    Only :data:`COMPATIBLE_SECTIONS` are compared, without the relocatable data keys. A key
+    that a checkpoint from an older version lacks counts as its default value.
     """
     differences = []
+    defaults = TrainConfig().to_dict()
     for section in COMPATIBLE_SECTIONS:
         mine, theirs = current.get(section), stored.get(section)
         if isinstance(mine, dict) and isinstance(theirs, dict):
+            theirs = {**{k: v for k, v in defaults[section].items() if k not in theirs}, **theirs}
             for key in sorted(set(mine) | set(theirs)):
                 if section == "data" and key in RELOCATABLE_DATA_KEYS:
                     continue
