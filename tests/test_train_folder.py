@@ -104,3 +104,21 @@ def test_class_pairs_and_rotations():
         torch.testing.assert_close(rotation @ rotation.T, torch.eye(3), atol=1e-5, rtol=0)
         assert torch.linalg.det(rotation) == pytest.approx(1.0, abs=1e-5)
     assert random_rotation("y", generator)[1].tolist() == [0.0, 1.0, 0.0]
+
+
+def test_class_validation_on_a_labelled_folder(tmp_path):
+    from spidermatch.io import write_vts
+
+    root = tmp_path / "animals"
+    for i, name in enumerate(["a0", "a1", "a2", "b0", "b1", "b2"]):
+        shape = SyntheticShapes(n_shapes=1, n_verts=200 + 10 * i, seed=i, n_refs=60).load(f"creature_{i:03d}")
+        save_mesh(shape.mesh, root / "off" / f"{name}.off")
+        write_vts(shape.corr, root / "corres" / f"{name}.vts")
+    config = folder_config(root, n_steps=2, val_every=2)
+    config.data.val, config.data.val_pairs, config.data.label_free_pairs = ["a1", "b1"], "class", 3
+    result = train(config, tmp_path / "run")
+    assert result.criterion == "val_error" and 0 < result.best_val < 1
+    row = read_rows(tmp_path / "run" / "validation.csv")[0]
+    assert float(row["wks_error"]) > 0 and float(row["val_unsup"]) > 0
+    log = (tmp_path / "run" / "losses.csv").read_text()
+    assert log.count("\n") == 3
