@@ -160,8 +160,9 @@ class LearnedExtractor:
     ----------
     checkpoint : str
         A ``last.pt`` or ``best.pt`` written by ``spidermatch-train``.
-    n_eig : int
-        Eigenpairs K; must equal the value the network was trained with.
+    n_eig : int, optional
+        Eigenpairs K; must equal the value the network was trained with (None: take it
+        from the checkpoint).
     adapt_steps : int
         Test-time adaptation steps in :meth:`pair_features` (0 disables it).
     adapt_lr : float
@@ -179,7 +180,7 @@ class LearnedExtractor:
     def __init__(
         self,
         checkpoint: str,
-        n_eig: int = 128,
+        n_eig: int | None = None,
         adapt_steps: int = 0,
         adapt_lr: float = 1e-3,
         adapt_faces: int | None = None,
@@ -187,6 +188,7 @@ class LearnedExtractor:
     ) -> None:
         self.checkpoint = str(checkpoint)
         self.network, self.config, stored = load_network(checkpoint)
+        n_eig = self.config.n_eig if n_eig is None else n_eig
         if n_eig != self.config.n_eig:
             raise CheckpointError(
                 f"{checkpoint}: the network was trained with n_eig = "

@@ -82,8 +82,22 @@ def checked_pair(fields: list[str], known: set[str], where: str) -> tuple[str, s
     return fields[0], fields[1]
 
 
+def mesh_files(folder: Path) -> dict[str, Path]:
+    """The mesh files of ``folder`` by name (file stem); DatasetError if two share a name."""
+    files: dict[str, Path] = {}
+    for path in sorted(folder.iterdir()):
+        if not path.is_file() or path.suffix.lower() not in MESH_SUFFIXES:
+            continue
+        if path.stem in files:
+            raise DatasetError(f"{path}: two meshes are called {path.stem!r} ({files[path.stem].name})")
+        files[path.stem] = path
+    return files
+
+
 class ShapeFolder:
     """Shapes in the FAUST_r layout (``off/`` meshes, ``corres/*.vts`` ground truth).
+
+    The meshes may also lie in the folder itself (no ``off/``); ``corres/`` is optional.
 
     Parameters
     ----------
@@ -94,12 +108,14 @@ class ShapeFolder:
 
     def __init__(self, root: str | os.PathLike) -> None:
         self.root = Path(root)
-        mesh_dir = self.root / "off"
-        if not mesh_dir.is_dir():
-            raise DatasetError(f"{self.root}: expected a folder 'off/' with the shapes")
-        self._files = {p.stem: p for p in sorted(mesh_dir.iterdir()) if p.suffix.lower() in MESH_SUFFIXES}
+        if not self.root.is_dir():
+            raise DatasetError(f"{self.root}: no such folder")
+        mesh_dir = self.root / "off" if (self.root / "off").is_dir() else self.root
+        self._files = mesh_files(mesh_dir)
         if not self._files:
-            raise DatasetError(f"{mesh_dir}: no .off/.obj/.ply shapes found")
+            raise DatasetError(
+                f"{mesh_dir}: no .off/.obj/.ply shapes found (looked in 'off/', else in the folder itself)"
+            )
         self.names = sorted(self._files)
 
     def __len__(self) -> int:

@@ -3,6 +3,7 @@ import pytest
 
 from spidermatch.datasets import DatasetError, ShapeFolder, SyntheticShapes, open_dataset, write_dataset
 from spidermatch.evaluate import cumulative_curve, dense_map_errors, sparse_map_errors
+from spidermatch.io import save_mesh
 from spidermatch.remesh import decimate
 from spidermatch.synthetic import creature_pair_ground_truth, make_creature
 
@@ -40,8 +41,16 @@ def test_write_and_read_folder_round_trip(tmp_path):
     pairs_file.write_text("creature_000 nobody\n")
     with pytest.raises(DatasetError, match="pairs.txt:1: unknown shape 'nobody'"):
         folder.pairs(pairs_file)
-    with pytest.raises(DatasetError, match="expected a folder 'off/'"):
-        ShapeFolder(tmp_path / "off")
+    flat = ShapeFolder(tmp_path / "off")  # the meshes may also lie in the folder itself
+    assert flat.names == shapes.names and flat.load("creature_000").corr is None
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DatasetError, match="empty: no .off/.obj/.ply shapes"):
+        ShapeFolder(tmp_path / "empty")
+    with pytest.raises(DatasetError, match="nowhere: no such folder"):
+        ShapeFolder(tmp_path / "nowhere")
+    save_mesh(shapes.load("creature_000").mesh, tmp_path / "off" / "creature_000.ply")
+    with pytest.raises(DatasetError, match=r"creature_000\.(off|ply): two meshes are called"):
+        ShapeFolder(tmp_path)
 
 
 def test_identity_map_has_zero_error_and_curve_is_cumulative(rng):

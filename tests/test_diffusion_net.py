@@ -166,6 +166,7 @@ def _save_checkpoint(path, model: ModelConfig = SMALL, **changes):
 def test_learned_extractor_features(tmp_path, creature):
     _save_checkpoint(tmp_path / "a.pt")
     extractor = LearnedExtractor(str(tmp_path / "a.pt"), n_eig=30)
+    assert LearnedExtractor(str(tmp_path / "a.pt")).n_eig == 30  # by default, the checkpoint's
     features = extractor(creature)
     assert extractor.name == "learned"
     assert features.shape == (creature.n_verts, 8)

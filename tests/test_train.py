@@ -11,7 +11,13 @@ import torch
 from features.diffusion_net import ModelConfig
 from features.learned import CheckpointError, load_network
 from train.config import DataConfig, OptimConfig, RunConfig, TrainConfig
-from train.data import TrainShape, prepare_train_shape, select_names, split_names
+from train.data import (
+    TrainShape,
+    default_split,
+    prepare_train_shape,
+    select_names,
+    split_names,
+)
 from train.loop import (
     load_checkpoint_into,
     new_state,
@@ -182,6 +188,10 @@ def test_bad_checkpoints_are_reported(tmp_path, shapes):
         load_checkpoint_into(tmp_path / "good.pt", new_state(other), other)
     longer = tiny_config(n_steps=50, val_every=7)  # run length may change on resume
     load_checkpoint_into(tmp_path / "good.pt", new_state(longer), longer)
+    older = torch.load(tmp_path / "good.pt", weights_only=True)  # written before a key existed
+    del older["config"]["data"]["val_pairs"], older["config"]["optim"]["schedule"]
+    torch.save(older, tmp_path / "older.pt")
+    load_checkpoint_into(tmp_path / "older.pt", new_state(config), config)
 
 
 def test_validator_agrees_with_the_evaluation_module():
@@ -222,7 +232,14 @@ def test_name_selection():
     assert select_names(names, "tr_reg_000..tr_reg_069", "data.train") == names[:70]
     assert select_names(names, "70:", "data.val") == names[70:]
     assert select_names(names, ["tr_reg_005", "tr_reg_001"], "x") == ["tr_reg_005", "tr_reg_001"]
-    assert split_names(names, DataConfig()) == (names[:70], names[70:])
+    train, val = split_names(names, DataConfig())  # every 8th shape validates, spread evenly
+    assert val == [names[i] for i in range(4, 80, 8)] and train == [n for n in names if n not in val]
+    assert split_names(names, DataConfig(val="70:")) == (names[:70], names[70:])
+    assert default_split(names[:6]) == ([names[i] for i in (0, 2, 3, 5)], [names[1], names[4]])
+    assert default_split(names[:3]) == ([names[0], names[2]], [names[1]])
+    assert default_split(names[:2]) == (names[:2], [names[1]])  # too few to hold one out
+    with pytest.raises(ValueError, match=r"at least 2 shapes, found 1 \(tr_reg_000\)"):
+        default_split(names[:1])
     with pytest.raises(ValueError, match="data.train.*no shape named 'tr_reg_099'"):
         select_names(names, "tr_reg_000..tr_reg_099", "data.train")
     with pytest.raises(ValueError, match="data.val: unknown shape 'bob'"):
@@ -266,7 +283,12 @@ def test_real_config_composes_and_runs(tmp_path):
     assert result.step == 2 and 0 <= result.best_val < 1
     assert (tmp_path / "best.pt").is_file() and (tmp_path / "last.pt").is_file()
     curve = (tmp_path / "validation.csv").read_text().splitlines()
-    assert curve[0] == "step,val_error,loss" and [row.split(",")[0] for row in curve[1:]] == ["1", "2"]
+    assert curve[0].startswith("step,val_error,val_unsup,") and [row.split(",")[0] for row in curve[1:]] == [
+        "1",
+        "2",
+    ]
+    losses = (tmp_path / "losses.csv").read_text().splitlines()
+    assert losses[0] == "step,loss,bij,orth,couple,sup,lr,seconds" and len(losses) == 3
     assert (tmp_path / "validation.png").stat().st_size > 0
     with pytest.raises(CheckpointError, match="missing.pt"):
         config = to_train_config(cfg)

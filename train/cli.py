@@ -32,7 +32,8 @@ def to_train_config(cfg: DictConfig) -> TrainConfig:
 def train_main(cfg: DictConfig) -> float:
     """Train DiffusionNet features; writes ``last.pt`` and ``best.pt`` in the run folder.
 
-    Returns the best validation error (mean normalised geodesic error).
+    Returns the best selection figure: the validation error (mean normalised geodesic
+    error) when the validation shapes have ground truth, else the label-free loss.
     """
     config = to_train_config(cfg)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
@@ -43,8 +44,9 @@ def train_main(cfg: DictConfig) -> float:
         print(f"spidermatch-train: error ({kind}): {error}", file=sys.stderr)
         raise SystemExit(2) from error
     status = "interrupted" if result.interrupted else "finished"
+    figure = "validation error" if result.criterion == "val_error" else "label-free validation loss"
     print(
-        f"{status} at step {result.step}: last validation error {result.last_val:.4f}, "
+        f"{status} at step {result.step}: last {figure} {result.last_val:.4f}, "
         f"best {result.best_val:.4f}; checkpoints in {out_dir}"
     )
     return result.best_val

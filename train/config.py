@@ -18,6 +18,9 @@ from train.losses import LossConfig
 COMPATIBLE_SECTIONS = ("seed", "model", "loss", "optim", "data")
 # Keys of ``data`` that may change on resume (where the files are, cache use).
 RELOCATABLE_DATA_KEYS = ("root", "use_cache")
+VAL_PAIR_MODES = ("all", "class")
+ROTATION_MODES = ("none", "y", "all")
+SCHEDULES = ("step", "cosine")
 
 
 @dataclass
@@ -30,8 +33,21 @@ class DataConfig:
         A FAUST_r-style folder (``off/``, ``corres/``); None uses generated creatures.
     train, val : list of str or str, optional
         Shape names: a list, an inclusive name range ``"first..last"`` or an index
-        slice ``"start:stop"`` over the sorted names. None: the last
-        ``max(2, round(n / 8))`` names validate and the others train.
+        slice ``"start:stop"`` over the sorted names. None: every k-th of the sorted
+        names validates (about one in 8, at least 2 when there are 4 or more
+        shapes, else 1) and the others train (see :func:`train.data.default_split`).
+    val_pairs : str
+        Validation pairs: ``"all"`` (every ordered pair of validation shapes; a single
+        validation shape is paired with training shapes) or ``"class"`` (each
+        validation shape with every other shape of its class, both directions; the
+        class is the name without trailing digits, e.g. ``cat3`` -> ``cat``).
+    label_free_pairs : int
+        At most this many of the validation pairs give the label-free figure (the
+        unsupervised loss at training resolution).
+    augment_rotation : str
+        Random rotation of ``xyz`` network inputs at each training step: ``"none"``,
+        ``"y"`` (about the y axis, for upright shapes) or ``"all"`` (uniform over SO(3)).
+        WKS inputs are invariant and ignore it.
     target_faces : int, optional
         Decimate training shapes to about this many faces (None: full resolution).
     synthetic_shapes, synthetic_verts : int
@@ -46,11 +62,24 @@ class DataConfig:
     root: str | None = None
     train: Any = None
     val: Any = None
+    val_pairs: str = "all"
+    label_free_pairs: int = 20
+    augment_rotation: str = "none"
     target_faces: int | None = 4000
     synthetic_shapes: int = 6
     synthetic_verts: int = 2000
     val_points: int | None = 500
     use_cache: bool = True
+
+    def __post_init__(self) -> None:
+        if self.val_pairs not in VAL_PAIR_MODES:
+            raise ValueError(f"data.val_pairs must be one of {VAL_PAIR_MODES}, got {self.val_pairs!r}")
+        if self.augment_rotation not in ROTATION_MODES:
+            raise ValueError(
+                f"data.augment_rotation must be one of {ROTATION_MODES}, got {self.augment_rotation!r}"
+            )
+        if self.label_free_pairs < 1:
+            raise ValueError(f"data.label_free_pairs must be positive, got {self.label_free_pairs}")
 
 
 @dataclass
@@ -61,9 +90,13 @@ class OptimConfig:
     ----------
     lr : float
     weight_decay : float
+    schedule : str
+        ``"step"``: multiply the learning rate by ``decay_gamma`` every ``decay_every``
+        steps; ``"cosine"``: cosine annealing from ``lr`` to ``lr_min`` over ``run.n_steps``.
     decay_every : int
-        Multiply the learning rate by ``decay_gamma`` every this many steps.
     decay_gamma : float
+    lr_min : float
+        Final learning rate of the cosine schedule.
     grad_clip : float
         Maximum gradient norm (0 disables clipping).
     ema_decay : float
@@ -74,8 +107,10 @@ class OptimConfig:
 
     lr: float = 1e-3
     weight_decay: float = 0.0
+    schedule: str = "step"
     decay_every: int = 2500
     decay_gamma: float = 0.5
+    lr_min: float = 1e-4
     grad_clip: float = 1.0
     ema_decay: float = 0.999
 
@@ -92,6 +127,8 @@ class RunConfig:
         Validate (and write ``last.pt``, ``best.pt``) every this many steps.
     checkpoint_every : int
         Also write ``last.pt`` every this many steps.
+    log_every : int
+        Append the loss terms to ``losses.csv`` every this many steps.
     progress : bool
         Show a tqdm progress bar.
     threads : int, optional
@@ -104,6 +141,7 @@ class RunConfig:
     n_steps: int = 300
     val_every: int = 100
     checkpoint_every: int = 100
+    log_every: int = 1
     progress: bool = True
     threads: int | None = None
     time_limit_min: float | None = None
@@ -128,7 +166,9 @@ class TrainConfig:
             )
         if not 0.0 <= self.optim.ema_decay < 1.0:
             raise ValueError(f"optim.ema_decay must be in [0, 1), got {self.optim.ema_decay}")
-        for key in ("n_steps", "val_every", "checkpoint_every"):
+        if self.optim.schedule not in SCHEDULES:
+            raise ValueError(f"optim.schedule must be one of {SCHEDULES}, got {self.optim.schedule!r}")
+        for key in ("n_steps", "val_every", "checkpoint_every", "log_every"):
             if getattr(self.run, key) < 1:
                 raise ValueError(f"run.{key} must be positive, got {getattr(self.run, key)}")
 
@@ -153,12 +193,15 @@ class TrainConfig:
 def incompatibilities(current: dict[str, Any], stored: dict[str, Any]) -> list[str]:
     """Settings that differ between a run's config and a checkpoint's, as ``key: a != b``.
 
-    Only :data:`COMPATIBLE_SECTIONS` are compared, without the relocatable data keys.
+    Only :data:`COMPATIBLE_SECTIONS` are compared, without the relocatable data keys. A key
+    that a checkpoint from an older version lacks counts as its default value.
     """
     differences = []
+    defaults = TrainConfig().to_dict()
     for section in COMPATIBLE_SECTIONS:
         mine, theirs = current.get(section), stored.get(section)
         if isinstance(mine, dict) and isinstance(theirs, dict):
+            theirs = {**{k: v for k, v in defaults[section].items() if k not in theirs}, **theirs}
             for key in sorted(set(mine) | set(theirs)):
                 if section == "data" and key in RELOCATABLE_DATA_KEYS:
                     continue

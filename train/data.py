@@ -104,22 +104,93 @@ def select_names(names: Sequence[str], spec: str | Sequence[str], what: str) -> 
     return chosen
 
 
-def split_names(names: Sequence[str], config: DataConfig) -> tuple[list[str], list[str]]:
-    """Training and validation names; unset parts default to a split by sorted order."""
+def default_split(names: Sequence[str]) -> tuple[list[str], list[str]]:
+    """Deterministic split of a folder without a split file: every k-th shape validates.
+
+    About one shape in 8 validates, spread evenly over the sorted names (so folders whose
+    names group classes, like ``cat0..cat10, dog0..``, validate on several classes); at
+    least 2 when there are 4 or more shapes (so validation has held-out pairs), else 1.
+    With only 2 shapes both train, and the validation shape is also trained on.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 2 shapes.
+    """
     ordered = sorted(names)
-    n_val = max(2, round(len(ordered) / 8))
-    train = (
-        select_names(ordered, config.train, "data.train") if config.train is not None else ordered[:-n_val]
-    )
-    val = select_names(ordered, config.val, "data.val") if config.val is not None else ordered[-n_val:]
+    n = len(ordered)
+    if n < 2:
+        raise ValueError(f"training needs at least 2 shapes, found {n} ({', '.join(ordered) or 'none'})")
+    n_val = max(1, min(2, n - 2), round(n / 8))
+    spacing = n / n_val
+    val = [ordered[min(n - 1, int((i + 0.5) * spacing))] for i in range(n_val)]
+    train = [name for name in ordered if name not in val]
+    if len(train) < 2:
+        logger.warning("only %d shapes: %s is trained on too (no held-out shape)", n, val[0])
+        train = ordered
+    return train, val
+
+
+def split_names(names: Sequence[str], config: DataConfig) -> tuple[list[str], list[str]]:
+    """Training and validation names; unset parts default to :func:`default_split`."""
+    auto_train, auto_val = default_split(names)
+    val = select_names(names, config.val, "data.val") if config.val is not None else auto_val
+    if config.train is not None:
+        train = select_names(names, config.train, "data.train")
+    elif config.val is not None:
+        train = [name for name in sorted(names) if name not in val]
+    else:
+        train = auto_train
     if len(train) < 2:
         raise ValueError(f"training needs at least 2 shapes, got {len(train)} ({train})")
-    if len(val) < 2:
-        raise ValueError(f"validation needs at least 2 shapes, got {len(val)} ({val})")
     overlap = sorted(set(train) & set(val))
     if overlap:
         logger.warning("%d shapes are both trained and validated on (e.g. %s)", len(overlap), overlap[0])
     return train, val
+
+
+def shape_class(name: str) -> str:
+    """The class of a shape: its name without trailing digits (``cat10`` -> ``cat``)."""
+    return name.rstrip("0123456789") or name
+
+
+def validation_pairs(
+    val: Sequence[str], train: Sequence[str], mode: str = "all", max_partners: int = 4
+) -> list[tuple[str, str]]:
+    """Ordered (source, target) name pairs that validate.
+
+    Parameters
+    ----------
+    val, train : sequence of str
+        Validation and training names.
+    mode : str
+        ``"all"``: every ordered pair of distinct validation shapes; with a single
+        validation shape, it and up to ``max_partners`` training shapes, both directions.
+        ``"class"``: each validation shape with every other shape of its class
+        (:func:`shape_class`) among validation and training names, both directions.
+    max_partners : int
+
+    Returns
+    -------
+    list of (str, str)
+        Without duplicates, in a deterministic order.
+    """
+    val = list(dict.fromkeys(val))
+    if mode == "class":
+        everyone = list(dict.fromkeys([*val, *train]))
+        partners = {v: [w for w in everyone if w != v and shape_class(w) == shape_class(v)] for v in val}
+    elif len(val) >= 2:
+        partners = {v: [w for w in val if w != v] for v in val}
+    else:
+        partners = {v: [w for w in train if w != v][:max_partners] for v in val}
+    pairs = []
+    for v, others in partners.items():
+        for w in others:
+            pairs.extend([(v, w), (w, v)])
+    pairs = list(dict.fromkeys(pairs))
+    if not pairs:
+        raise ValueError(f"no validation pairs: {val} have no partner shape (data.val_pairs={mode})")
+    return pairs
 
 
 def prepare_train_shape(shape: Shape, model: ModelConfig, config: DataConfig) -> TrainShape:
@@ -173,16 +244,25 @@ class Validator:
         Reference points per pair (None: all).
     progress : bool
         Show a progress bar while the distance tables are computed.
+    pairs : list of (int, int), optional
+        Ordered pairs of indices into ``shapes`` (default: every ordered pair).
     """
 
-    def __init__(self, shapes: list[ValShape], val_points: int | None = None, progress: bool = False) -> None:
+    def __init__(
+        self,
+        shapes: list[ValShape],
+        val_points: int | None = None,
+        progress: bool = False,
+        pairs: list[tuple[int, int]] | None = None,
+    ) -> None:
         n_refs = min(len(shape.corr) for shape in shapes)
         if any(len(shape.corr) != n_refs for shape in shapes):
-            raise ValueError("validation shapes have ground truth of different lengths")
+            counts = ", ".join(f"{shape.name}: {len(shape.corr)}" for shape in shapes)
+            raise ValueError(f"validation shapes have ground truth of different lengths ({counts})")
         count = n_refs if val_points is None else min(val_points, n_refs)
         self.rows = np.unique(np.linspace(0, n_refs - 1, count).round().astype(np.int64))
         self.shapes = shapes
-        self.pairs = list(itertools.permutations(range(len(shapes)), 2))
+        self.pairs = list(itertools.permutations(range(len(shapes)), 2)) if pairs is None else list(pairs)
         self._tables: list[np.ndarray] | None = None
         self.progress = progress
 
@@ -220,5 +300,15 @@ class Validator:
 
     def __call__(self, network: DiffusionNet) -> float:
         """Mean over pairs of the pair's mean normalised geodesic error."""
-        feats = self.features(network)
+        return self.error_of(self.features(network))
+
+    def error_of(self, feats: list[np.ndarray]) -> float:
+        """Mean pair error of given L2-normalised descriptors, one (V, C) array per shape."""
         return float(np.mean([self.pair_errors(feats, i, j).mean() for i, j in self.pairs]))
+
+    def wks_error(self, use_cache: bool = True) -> float:
+        """The same figure for WKS descriptors (``features=wks`` of spidermatch-match)."""
+        from features.extractor import WKSExtractor
+
+        extractor = WKSExtractor(use_cache=use_cache)
+        return self.error_of([extractor(shape.mesh) for shape in self.shapes])

@@ -35,17 +35,19 @@ from tqdm.auto import tqdm
 
 from features.diffusion_net import DiffusionNet
 from features.learned import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, CheckpointError, read_checkpoint
+from spidermatch.datasets import DatasetError
 from train.config import TrainConfig, incompatibilities
 from train.data import (
     TrainShape,
-    Validator,
     open_shapes,
     prepare_shapes,
     prepare_train_shape,
-    prepare_val_shape,
     split_names,
+    validation_pairs,
 )
 from train.losses import pair_loss
+from train.report import LossLog, write_figure, write_validation_csv
+from train.validation import Validation, prepare_validation
 
 logger = logging.getLogger(__name__)
 
@@ -63,6 +65,7 @@ class TrainingState:
     best_val: float = math.inf
     history: list[dict[str, float]] = field(default_factory=list)
     last_loss: float = math.nan
+    last_terms: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -76,9 +79,11 @@ class TrainResult:
     losses : list of float
         Loss of each step run by this call, in order.
     best_val, last_val : float
-        Best and most recent validation error (nan if never validated).
+        Best and most recent value of the selection figure (nan if never validated).
     interrupted : bool
         The run stopped early on Ctrl-C (``last.pt`` holds its state).
+    criterion : str
+        The selection figure: ``"val_error"`` (labelled) or ``"val_unsup"`` (label-free).
     """
 
     step: int
@@ -86,6 +91,7 @@ class TrainResult:
     best_val: float
     last_val: float
     interrupted: bool = False
+    criterion: str = "val_error"
 
 
 def new_state(config: TrainConfig) -> TrainingState:
@@ -94,7 +100,10 @@ def new_state(config: TrainConfig) -> TrainingState:
     network = DiffusionNet.from_config(config.model)
     optim = config.optim
     optimiser = torch.optim.Adam(network.parameters(), lr=optim.lr, weight_decay=optim.weight_decay)
-    scheduler = torch.optim.lr_scheduler.StepLR(optimiser, optim.decay_every, optim.decay_gamma)
+    if optim.schedule == "cosine":
+        scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.run.n_steps, optim.lr_min)
+    else:
+        scheduler = torch.optim.lr_scheduler.StepLR(optimiser, optim.decay_every, optim.decay_gamma)
     generator = torch.Generator().manual_seed(config.seed)
     average = weight_copy(network.state_dict()) if optim.ema_decay > 0 else None
     return TrainingState(network, optimiser, scheduler, generator, average)
@@ -204,15 +213,44 @@ def sample_pair(generator: torch.Generator, n: int) -> tuple[int, int]:
     return first, second + (second >= first)
 
 
+def random_rotation(mode: str, generator: torch.Generator) -> torch.Tensor:
+    """A random rotation (3, 3): about the y axis (``"y"``) or uniform over SO(3) (``"all"``)."""
+    if mode == "y":
+        angle = 2 * math.pi * float(torch.rand(1, generator=generator))
+        cos, sin = math.cos(angle), math.sin(angle)
+        return torch.tensor([[cos, 0.0, sin], [0.0, 1.0, 0.0], [-sin, 0.0, cos]])
+    w, x, y, z = torch.randn(4, generator=generator).tolist()
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / norm, x / norm, y / norm, z / norm
+    return torch.tensor(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def network_input(shape: TrainShape, config: TrainConfig, generator: torch.Generator) -> torch.Tensor:
+    """Input features of a training shape, randomly rotated if ``data.augment_rotation`` asks (xyz only)."""
+    features = shape.input.features
+    if config.data.augment_rotation == "none" or config.model.input != "xyz":
+        return features
+    return features @ random_rotation(config.data.augment_rotation, generator).T.to(features.dtype)
+
+
 def train_step(state: TrainingState, shapes: list[TrainShape], config: TrainConfig) -> float:
-    """One Adam step on a random pair; returns the loss before the step."""
+    """One Adam step on a random pair; returns the loss before the step.
+
+    The loss terms of the step are left in ``state.last_terms``.
+    """
     state.network.train()
     i, j = sample_pair(state.generator, len(shapes))
     x, y = shapes[i], shapes[j]
-    feat_x = state.network(x.input.features, x.input.ops)
-    feat_y = state.network(y.input.features, y.input.ops)
+    feat_x = state.network(network_input(x, config, state.generator), x.input.ops)
+    feat_y = state.network(network_input(y, config, state.generator), y.input.ops)
     corr = (x.corr, y.corr) if x.corr is not None and y.corr is not None else None
-    loss, _ = pair_loss(feat_x, feat_y, x.input.ops, y.input.ops, config.loss, corr)
+    loss, terms = pair_loss(feat_x, feat_y, x.input.ops, y.input.ops, config.loss, corr)
     if not torch.isfinite(loss):
         raise FloatingPointError(f"step {state.step + 1}: loss is {float(loss)} on pair ({x.name}, {y.name})")
     state.optimiser.zero_grad(set_to_none=True)
@@ -224,46 +262,38 @@ def train_step(state: TrainingState, shapes: list[TrainShape], config: TrainConf
     state.step += 1
     update_average(state, config.optim.ema_decay)
     state.last_loss = loss.item()
+    state.last_terms = {"loss": state.last_loss, **terms}
     return state.last_loss
 
 
-def validate(state: TrainingState, validator: Validator | None, config: TrainConfig, out_dir: Path) -> float:
-    """Validate, record, and write ``last.pt`` (and ``best.pt`` on improvement)."""
-    error = validator(evaluation_network(state)) if validator is not None else math.nan
-    improved = error < state.best_val
+def validate(
+    state: TrainingState, validation: Validation | None, config: TrainConfig, out_dir: Path
+) -> float:
+    """Validate, record, and write ``last.pt`` (and ``best.pt`` on improvement).
+
+    Returns the selection figure (``validation.criterion``; nan without validation).
+    """
+    figures = validation(evaluation_network(state)) if validation is not None else {}
+    criterion = validation.criterion if validation is not None else "val_error"
+    value = figures.get(criterion, math.nan)
+    improved = value < state.best_val
     if improved:
-        state.best_val = error
-    state.history.append({"step": state.step, "val_error": error, "loss": state.last_loss})
+        state.best_val = value
+    state.history.append({"step": state.step, **figures, "loss": state.last_loss})
     save_checkpoint(out_dir / "last.pt", state, config)
     if improved:
         save_checkpoint(out_dir / "best.pt", state, config)
-    write_validation_report(state.history, out_dir)
-    logger.info("step %d: validation error %.4f (best %.4f)", state.step, error, state.best_val)
-    return error
-
-
-def write_validation_report(history: list[dict[str, float]], out_dir: Path) -> None:
-    """Write the validation curve so far as ``validation.csv`` and ``validation.png``."""
-    lines = ["step,val_error,loss"] + [f"{h['step']},{h['val_error']:.6f},{h['loss']:.6f}" for h in history]
-    (out_dir / "validation.csv").write_text("\n".join(lines) + "\n")
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    steps = [h["step"] for h in history]
-    errors = [h["val_error"] for h in history]
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    ax.plot(steps, errors, marker="o")
-    best = min(range(len(errors)), key=lambda i: errors[i] if math.isfinite(errors[i]) else math.inf)
-    ax.plot([steps[best]], [errors[best]], marker="*", markersize=14, color="tab:red")
-    ax.set_xlabel("training step")
-    ax.set_ylabel("mean geodesic error (NN feature map)")
-    ax.set_title(f"validation: best {errors[best]:.4f} at step {steps[best]} (star)")
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out_dir / "validation.png", dpi=120)
-    plt.close(fig)
+    write_validation_csv(state.history, out_dir)
+    write_figure(out_dir)
+    logger.info(
+        "step %d: %s %.4f (best %.4f); %s",
+        state.step,
+        criterion,
+        value,
+        state.best_val,
+        ", ".join(f"{key} {val:.4f}" for key, val in figures.items() if key != criterion),
+    )
+    return value
 
 
 @contextlib.contextmanager
@@ -298,7 +328,7 @@ def run_training(
     config: TrainConfig,
     out_dir: str | os.PathLike,
     shapes: list[TrainShape],
-    validator: Validator | None,
+    validation: Validation | None,
     started: float | None = None,
 ) -> TrainResult:
     """Train on prepared shapes, validating and checkpointing into ``out_dir``.
@@ -312,11 +342,11 @@ def run_training(
     config : TrainConfig
         ``config.resume`` names a checkpoint to continue from (or None).
     out_dir : str or PathLike
-        Receives ``last.pt`` and ``best.pt``.
+        Receives ``last.pt``, ``best.pt``, ``losses.csv``, ``validation.csv`` and ``.png``.
     shapes : list of TrainShape
         At least two training shapes.
-    validator : Validator, optional
-        None skips the metric (validation error is nan) but still checkpoints.
+    validation : Validation, optional
+        None skips the figures (they are nan) but still checkpoints.
     started : float, optional
         ``time.monotonic()`` at which the time limit starts counting (default: now).
     """
@@ -331,21 +361,27 @@ def run_training(
     started = time.monotonic() if started is None else started
     deadline = math.inf if run.time_limit_min is None else started + 60 * run.time_limit_min
     losses, last_val = [], math.nan
+    log = LossLog(out_dir / "losses.csv", state.step)
+    run_started = time.monotonic()
     bar = tqdm(
         total=run.n_steps,
         initial=min(state.step, run.n_steps),
         desc="train",
+        unit="step",
         disable=not run.progress,
         dynamic_ncols=True,
     )
     with bar, stop_on_interrupt() as stop:
         while state.step < run.n_steps and not stop[0]:
             losses.append(train_step(state, shapes, config))
+            if state.step % run.log_every == 0:
+                lr = state.optimiser.param_groups[0]["lr"]
+                log.append(state.step, state.last_terms, lr, time.monotonic() - run_started)
             bar.update(1)
-            bar.set_postfix(loss=f"{losses[-1]:.4f}", val=f"{last_val:.4f}", refresh=False)
+            bar.set_postfix(progress_fields(state.last_terms, last_val, validation), refresh=False)
             out_of_time = time.monotonic() > deadline
             if state.step % run.val_every == 0 or state.step == run.n_steps or out_of_time:
-                last_val = validate(state, validator, config, out_dir)
+                last_val = validate(state, validation, config, out_dir)
             elif state.step % run.checkpoint_every == 0:
                 save_checkpoint(out_dir / "last.pt", state, config)
             if out_of_time:
@@ -354,7 +390,19 @@ def run_training(
     if stop[0]:
         save_checkpoint(out_dir / "last.pt", state, config)
         logger.warning("stopped at step %d; continue with resume=%s", state.step, out_dir / "last.pt")
-    return TrainResult(state.step, losses, state.best_val, last_val, interrupted=stop[0])
+    criterion = validation.criterion if validation is not None else "val_error"
+    return TrainResult(state.step, losses, state.best_val, last_val, stop[0], criterion)
+
+
+def progress_fields(
+    terms: dict[str, float], last_val: float, validation: Validation | None
+) -> dict[str, str]:
+    """The progress bar's postfix: each loss term of the last step and the last validation figure."""
+    fields = {key: f"{value:.3g}" for key, value in terms.items()}
+    criterion = validation.criterion if validation is not None else "val"
+    name = {"val_error": "val_err"}.get(criterion, criterion)
+    fields[name] = f"{last_val:.4f}"
+    return fields
 
 
 def _carry_best(resumed: Path, out_dir: Path) -> None:
@@ -365,20 +413,21 @@ def _carry_best(resumed: Path, out_dir: Path) -> None:
         shutil.copyfile(best, out_dir / "best.pt")
 
 
-def prepare_data(config: TrainConfig) -> tuple[list[TrainShape], Validator]:
+def prepare_data(config: TrainConfig) -> tuple[list[TrainShape], Validation]:
     """Open the dataset, split it, and precompute all training and validation inputs."""
     dataset = open_shapes(config.data)
-    train_names, val_names = split_names(dataset.names, config.data)
+    try:
+        train_names, val_names = split_names(dataset.names, config.data)
+    except ValueError as error:
+        raise DatasetError(f"{config.data.root or 'synthetic shapes'}: {error}") from error
     logger.info(
-        "%d training shapes (%s..%s), %d validation shapes (%s..%s)",
+        "%d training shapes (%s..%s), %d validation shapes (%s)",
         len(train_names),
         train_names[0],
         train_names[-1],
         len(val_names),
-        val_names[0],
-        val_names[-1],
+        ", ".join(val_names) if len(val_names) <= 6 else f"{val_names[0]}..{val_names[-1]}",
     )
-    progress = config.run.progress
     shapes = prepare_shapes(
         dataset,
         train_names,
@@ -386,18 +435,10 @@ def prepare_data(config: TrainConfig) -> tuple[list[TrainShape], Validator]:
         config.model,
         config.data,
         "prepare training shapes",
-        progress,
+        config.run.progress,
     )
-    val_shapes = prepare_shapes(
-        dataset,
-        val_names,
-        prepare_val_shape,
-        config.model,
-        config.data,
-        "prepare validation shapes",
-        progress,
-    )
-    return shapes, Validator(val_shapes, config.data.val_points, progress)
+    pairs = validation_pairs(val_names, train_names, config.data.val_pairs)
+    return shapes, prepare_validation(dataset, pairs, shapes, config)
 
 
 def train(config: TrainConfig, out_dir: str | os.PathLike) -> TrainResult:
@@ -410,5 +451,5 @@ def train(config: TrainConfig, out_dir: str | os.PathLike) -> TrainResult:
         torch.set_num_threads(config.run.threads)
     if config.resume is not None:
         compatible_checkpoint(config.resume, config)  # fail before the (slow) data preparation
-    shapes, validator = prepare_data(config)
-    return run_training(config, out_dir, shapes, validator, started)
+    shapes, validation = prepare_data(config)
+    return run_training(config, out_dir, shapes, validation, started)
