@@ -48,6 +48,8 @@ VARIANTS = {
     "zoomout": dict(method="zoomout", smoothing=0),
     "zoomout_local": dict(method="zoomout_local", smoothing=0),
     "zoomout_local_s3": dict(method="zoomout_local", smoothing=3),
+    "zoomout_accept_s3": dict(method="zoomout_accept", smoothing=3),
+    "zoomout_s3": dict(method="zoomout", smoothing=3),
 }
 FIELDS = ("pair", "method", "geodesic_error", "tears", "flips", "flipped", "degenerate", "time_s", "peak_mib")
 

@@ -21,6 +21,9 @@ Methods (``DenseSettings.method``):
 ``zoomout_local``
     As ``zoomout``, but each vertex may only go to a target vertex within a local
     radius of its ``interp`` image (a neighbourhood-preserving spectral refinement).
+``zoomout_accept``
+    ``zoomout`` proposes, and a proposal is accepted only within the local radius of
+    the ``interp`` image; elsewhere the ``interp`` image is kept.
 
 Every method pins the low-resolution source vertices to their certified images:
 full-resolution vertex ``low_x.to_full[i]`` goes to ``low_y.to_full[low_map[i]]``.
@@ -46,7 +49,7 @@ from spidermatch.surface import (
 
 logger = logging.getLogger(__name__)
 
-METHODS = ("interp", "interp_features", "zoomout", "zoomout_local")
+METHODS = ("interp", "interp_features", "zoomout", "zoomout_local", "zoomout_accept")
 
 
 @dataclass(frozen=True)
@@ -174,6 +177,10 @@ def densify(
             candidates = np.where(inside, index, index[:, :1])
         features = (source_features, target_features)
         vertex = spectral_vertices(source, target, start, candidates, features, settings, spectra)
+        if settings.method == "zoomout_accept":
+            points = surface_positions(target, face, bary)
+            far = np.linalg.norm(target.verts[vertex] - points, axis=1) > radius
+            vertex[far] = start[far]
         face, bary = vertex_points(target, vertex)
     dense = pin_certified(DenseMap(vertex, face, bary, settings.method), target, low_x, low_y, low_map)
     if settings.smoothing > 0:

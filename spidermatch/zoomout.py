@@ -91,11 +91,13 @@ def nearest_rows(queries: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Index of the nearest row of ``points`` (M, D) for each row of ``queries`` (N, D), (N,)."""
     if points.shape[1] <= 8:
         return np.asarray(cKDTree(points).query(queries)[1], dtype=np.int64)
-    squared = np.einsum("md,md->m", points, points)
+    # Single precision halves the time of the products; ties at that precision do not matter.
+    points32 = np.ascontiguousarray(points, dtype=np.float32)
+    squared = np.einsum("md,md->m", points32, points32)
     out = np.empty(len(queries), dtype=np.int64)
     for start in range(0, len(queries), BLOCK):
-        block = queries[start : start + BLOCK]
-        out[start : start + BLOCK] = np.argmin(squared[None, :] - 2.0 * block @ points.T, axis=1)
+        block = np.asarray(queries[start : start + BLOCK], dtype=np.float32)
+        out[start : start + BLOCK] = np.argmin(squared[None, :] - 2.0 * block @ points32.T, axis=1)
     return out
 
 
