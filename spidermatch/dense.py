@@ -77,7 +77,7 @@ class DenseSettings:
 
     """
 
-    method: str = "interp_features"
+    method: str = "zoomout_local"
     radius: float = 1.0
     distance_weight: float = 1.0
     n_neighbours: int = 32
@@ -85,7 +85,7 @@ class DenseSettings:
     spectral_stop: int = 100
     spectral_step: int = 5
     spectral_feature_weight: float = 0.0
-    smoothing: int = 0
+    smoothing: int = 3
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
