@@ -47,11 +47,12 @@ def test_interp_maps_a_shape_onto_itself_by_the_identity():
     mesh = make_creature(1200, seed=2).mesh
     low = decimate(mesh, 150)
     features = mesh.verts.copy()
-    dense = densify(
-        mesh, mesh, low, low, np.arange(low.mesh.n_verts), features, features, DenseSettings("interp")
-    )
+    identity = np.arange(low.mesh.n_verts)
+    dense = densify(mesh, mesh, low, low, identity, features, features, DenseSettings("interp", smoothing=0))
     assert np.mean(dense.vertex == np.arange(mesh.n_verts)) > 0.98
     assert np.abs(dense.points(mesh) - mesh.verts).max() < 0.05 * np.sqrt(mesh.area)
+    smooth = densify(mesh, mesh, low, low, identity, features, features, DenseSettings("interp", smoothing=3))
+    assert np.abs(smooth.points(mesh) - mesh.verts).max() < 0.05 * np.sqrt(mesh.area)
 
 
 @pytest.mark.parametrize("method", METHODS)
