@@ -58,8 +58,10 @@ class Matching:
         input meshes, one row per vertex of the decimated source (N of them): the matching
         the solver certified. None when the solver found no matching.
     dense_map : np.ndarray, shape (V_src,), int64, or None
-        Target vertex for every source vertex (``src_to_tgt``), when the pipeline computes a
-        dense map; None otherwise. ``p2p`` is the same array.
+        Target vertex for every vertex of the full-resolution source (``src_to_tgt``); None when
+        the dense map is turned off or there is no matching. ``p2p`` is the same array.
+    dense : spidermatch.dense.DenseMap or None
+        The dense map in point-on-surface form (target face and barycentric coordinates).
     status : str
         "optimal" (certified within ``mip_rel_gap``), "feasible" (stopped early with a
         matching that is not proven optimal), "infeasible", "no_solution" or "error".
@@ -87,6 +89,11 @@ class Matching:
     features: str
     timings: dict = field(default_factory=dict)
     details: object = field(default=None, repr=False)
+
+    @property
+    def dense(self):
+        """The :class:`~spidermatch.dense.DenseMap` of every source vertex, or None."""
+        return None if self.details is None else self.details.dense
 
     @property
     def proven_optimal(self) -> bool:
@@ -285,7 +292,7 @@ def _settings(base, feature_name: str, resolution, time_limit, mip_rel_gap, stra
 def _matching(result, feature_name: str, resolution: int, timings: dict) -> Matching:
     summary = result.solve.summary()
     matches = result.full_pairs.astype(np.int64) if result.low_map is not None and result.check.ok else None
-    dense = getattr(result, "dense_map", None)
+    dense = result.dense_map if matches is not None else None
     if matches is not None and not result.solve.proven_optimal:
         logger.warning(
             "the solver stopped early: this matching is NOT proven optimal (gap %s)", summary["gap"]

@@ -33,8 +33,21 @@ SUMMARY_COLUMNS = (
     "solve_s",
     "total_s",
     "geodesic_error",
+    "dense_error",
+    "nn_error",
+    "dense_tears",
+    "nn_tears",
+    "dense_flips",
+    "nn_flips",
+    "dense_s",
     "reason",
 )
+# summary.csv column -> (result.json "dense" entry, figure); see spidermatch.dense_report.
+DENSE_COLUMNS = {
+    f"{short}_{figure}": (entry, "geodesic_error" if figure == "error" else figure)
+    for short, entry in (("dense", "dense"), ("nn", "nearest_neighbour"))
+    for figure in ("error", "tears", "flips")
+}
 
 
 def select_pairs(
@@ -89,8 +102,17 @@ def summary_row(source: str, target: str, result: dict) -> dict:
         "solve_s": timings.get("solve"),
         "total_s": result.get("total_time_s"),
         "geodesic_error": error.get("mean"),
+        **_dense_columns(result),
         "reason": result.get("error", ""),
     }
+
+
+def _dense_columns(result: dict) -> dict:
+    """The dense map's and the features' nearest-neighbour figures from ``result.json`` (None if absent)."""
+    dense = result.get("dense") or {}
+    row = {column: (dense.get(entry) or {}).get(figure) for column, (entry, figure) in DENSE_COLUMNS.items()}
+    row["dense_s"] = (result.get("timings_s") or {}).get("dense")
+    return row
 
 
 def _stats(values: list[float]) -> dict:
@@ -114,6 +136,7 @@ def summarise(rows: list[dict], n_planned: int) -> dict:
         "solve_s": _stats([r["solve_s"] for r in succeeded]),
         "total_s": _stats([r["total_s"] for r in rows]),
         "gap": _stats([r["gap"] for r in succeeded]),
+        **{column: _stats([r.get(column) for r in succeeded]) for column in (*DENSE_COLUMNS, "dense_s")},
         "failures": [
             {"source": r["source"], "target": r["target"], "status": r["status"], "reason": r["reason"]}
             for r in rows

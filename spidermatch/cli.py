@@ -23,6 +23,7 @@ from spidermatch import guard
 from spidermatch.api import BETTER_FEATURES_HINT
 from spidermatch.costs import RobustLoss
 from spidermatch.datasets import DatasetError, SyntheticShapes
+from spidermatch.dense import DenseSettings
 from spidermatch.evaluate import sparse_map_errors
 from spidermatch.io import load_mesh, read_vts
 from spidermatch.mesh import Mesh, MeshError
@@ -96,7 +97,16 @@ def settings_from_config(cfg, resolution: int) -> MatchSettings:
             log=bool(solver.log),
         ),
         strategy=str(solver.strategy),
+        dense=dense_settings(cfg),
     )
+
+
+def dense_settings(cfg) -> DenseSettings | None:
+    """:class:`DenseSettings` from the ``dense`` group, or None when ``dense.enabled=false`` (or no group)."""
+    group = cfg.get("dense")
+    if group is None or not group.enabled:
+        return None
+    return DenseSettings(**{key: value for key, value in group.items() if key != "enabled"})
 
 
 def make_extractor(cfg):
@@ -268,6 +278,8 @@ def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -
     status = report["status"]
     report["status"] = "writing"  # 'optimal' only once every requested output is written
     _write_matching(cfg, output_dir, result, inputs, report)
+    if result.dense is not None:
+        _write_dense(output_dir, result, inputs, (feat_x, feat_y), report)
     report.update(status=status, exit_code=0)
     return 0
 
@@ -291,6 +303,23 @@ def _write_matching(cfg, output_dir: Path, result: MatchResult, inputs: MatchInp
         logger.warning(
             "the solver stopped early: this matching is NOT proven optimal (gap %.2e)", result.solve.gap
         )
+
+
+def _write_dense(
+    output_dir: Path, result: MatchResult, inputs: MatchInputs, features: tuple, report: dict
+) -> None:
+    """``dense_matches.csv``, ``dense_map.npz`` and the dense figures in ``report`` (see dense_report)."""
+    from spidermatch.dense_report import dense_figures, write_dense_outputs
+
+    for path in write_dense_outputs(output_dir, result.dense):
+        logger.info("wrote %s", path)
+    figures, errors = dense_figures(
+        result.dense, inputs.source, inputs.target, *features, inputs.source_corr, inputs.target_corr
+    )
+    report["dense"] = figures
+    if errors is not None:
+        with guard.atomic_path(output_dir / "dense_geodesic_errors.npy") as tmp:
+            np.save(tmp, errors)
 
 
 def _write_pngs(

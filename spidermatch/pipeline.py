@@ -25,6 +25,7 @@ from spidermatch.correspondence import (
 )
 from spidermatch.costs import RobustLoss, feature_cost_matrix, product_edge_costs
 from spidermatch.curve import SpiderCurve, spider_curve
+from spidermatch.dense import DenseMap, DenseSettings, densify
 from spidermatch.ilp import FAMILIES, IlpModel, build_model
 from spidermatch.mesh import Mesh
 from spidermatch.product_graph import ProductGraph, build_product_graph
@@ -78,6 +79,9 @@ class MatchSettings:
     solver : SolverOptions
     strategy : str
         Solving strategy name (see :mod:`spidermatch.solve.strategies`).
+    dense : DenseSettings or None
+        How to extend the certified map to every full-resolution source vertex
+        (:mod:`spidermatch.dense`); None: no dense map.
 
     """
 
@@ -90,6 +94,7 @@ class MatchSettings:
     constraints: tuple = FAMILIES
     solver: SolverOptions = field(default_factory=SolverOptions)
     strategy: str = "rcfix"
+    dense: DenseSettings | None = field(default_factory=DenseSettings)
 
 
 @dataclass(eq=False)
@@ -113,6 +118,8 @@ class MatchResult:
         ``variables``, ``rows``, ``nonzeros`` of the full ILP as built (before any column is
         dropped or connectivity cut added; ``solve.n_rows`` and ``solve.nnz`` describe the
         last model HiGHS solved instead).
+    dense : DenseMap or None
+        Image of every full-resolution source vertex (None if turned off or unsolved).
 
     """
 
@@ -126,6 +133,12 @@ class MatchResult:
     check: CheckReport | None = None
     timings: dict = field(default_factory=dict)
     model_size: dict = field(default_factory=dict)
+    dense: DenseMap | None = None
+
+    @property
+    def dense_map(self) -> np.ndarray | None:
+        """Target vertex (full resolution) of every original source vertex, (V_X,), or None."""
+        return None if self.dense is None else self.dense.vertex
 
     @property
     def full_pairs(self) -> np.ndarray:
@@ -260,6 +273,18 @@ def match(
     if solved.x is not None:
         with _stage(timings, "check"):
             _read_solution(result, tuple(settings.constraints))
+    if settings.dense is not None and result.low_map is not None and result.check.ok:
+        with _stage(timings, "dense"):
+            result.dense = densify(
+                source.centred(),
+                target.centred(),
+                low_x,
+                low_y,
+                result.low_map,
+                source_features,
+                target_features,
+                settings.dense,
+            )
     return result
 
 

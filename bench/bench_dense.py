@@ -1,0 +1,251 @@
+"""Dense maps of every vertex from the certified low-resolution map: each method side by side.
+
+    .venv/bin/python bench/bench_dense.py --data ../shared/data/FAUST_r --resolution 1000 \
+        --features learned --checkpoint best.pt
+
+Each pair is certified once (decimation, SpiderMatch solve, check) and the solved
+low-resolution map, the decimations and the features are cached in ``--cache``
+(keyed by pair, resolution, features and checkpoint), so that densification can be
+iterated on without re-solving (``--certify-only`` just fills the cache). Then, per
+pair, every variant and the features' nearest-neighbour map are measured: mean
+geodesic error over all reference points (dense Princeton protocol), tears, flips,
+densification time (``time_s``, wall clock: on a shared machine it includes waiting
+for the CPU) and its peak memory (``peak_mib``: tracemalloc's peak of the allocations
+made during a second, untimed call, numpy arrays included). Prints a table; writes
+``<out>.json`` and ``<out>.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import hashlib
+import json
+import os
+import resource
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+from feature_options import add_feature_options, load_pair_with_features, parse_checked
+
+from spidermatch.dense import DenseSettings, densify, feature_nearest_neighbours
+from spidermatch.evaluate import sparse_map_errors
+from spidermatch.mesh import Mesh
+from spidermatch.metrics import consistency, geodesic_errors, vertex_map_consistency
+from spidermatch.remesh import Decimated
+
+VAL_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
+
+# Variant name -> DenseSettings keywords.
+VARIANTS = {
+    "interp": dict(method="interp", smoothing=0),
+    "interp_s3": dict(method="interp", smoothing=3),
+    "interp_features": dict(method="interp_features", smoothing=0),
+    "interp_features_s3": dict(method="interp_features", smoothing=3),
+    "zoomout": dict(method="zoomout", smoothing=0),
+    "zoomout_local": dict(method="zoomout_local", smoothing=0),
+    "zoomout_local_s3": dict(method="zoomout_local", smoothing=3),
+    "zoomout_accept_s3": dict(method="zoomout_accept", smoothing=3),
+    "zoomout_s3": dict(method="zoomout", smoothing=3),
+}
+FIELDS = ("pair", "method", "geodesic_error", "tears", "flips", "flipped", "degenerate", "time_s", "peak_mib")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--data", default="synthetic")
+    parser.add_argument("--pairs", nargs="+", default=VAL_PAIRS, help="SOURCE:TARGET shape names")
+    parser.add_argument("--resolution", type=int, default=1000)
+    add_feature_options(parser)
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    parser.add_argument(
+        "--set", nargs="*", default=[], metavar="KEY=VALUE", help="DenseSettings for all variants"
+    )
+    parser.add_argument("--cache", default=os.path.expanduser("~/.cache/spidermatch/bench_dense"))
+    parser.add_argument("--certify-only", action="store_true", help="fill the cache and stop")
+    parser.add_argument("--out", default=None, help="default: bench/results/dense_map_faust_val_<resolution>")
+    args = parse_checked(parser, argv)
+    overrides = {key: _number(value) for key, value in (item.split("=", 1) for item in args.set)}
+    rows = []
+    for text in args.pairs:
+        pair = tuple(text.split(":"))
+        certified = certified_pair(args, pair)
+        if args.certify_only:
+            print(f"{text}: certified ({certified['status']}, {certified['solve_s']:.1f} s)", flush=True)
+            continue
+        rows += measure_pair(text, certified, args.variants, overrides)
+    if not args.certify_only:
+        write_results(args, rows, overrides)
+
+
+def _number(text: str):
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def cache_path(args, pair: tuple[str, str]) -> Path:
+    """One file per pair, resolution, feature type and checkpoint (path, size and time)."""
+    checkpoint = ""
+    if args.checkpoint:
+        stat = Path(args.checkpoint).stat()
+        checkpoint = f"{Path(args.checkpoint).resolve()}:{stat.st_size}:{stat.st_mtime_ns}"
+    key = json.dumps([os.path.abspath(args.data), pair, args.resolution, args.features, checkpoint])
+    return (
+        Path(args.cache)
+        / f"{pair[0]}__{pair[1]}_{args.resolution}_{hashlib.sha1(key.encode()).hexdigest()[:12]}.npz"
+    )
+
+
+def certified_pair(args, pair: tuple[str, str]) -> dict:
+    """The pair's meshes, features and certified low-resolution map, from the cache or solved now."""
+    from spidermatch.datasets import open_dataset
+
+    path = cache_path(args, pair)
+    if not path.is_file():
+        _certify(args, pair, path)
+    dataset = open_dataset(args.data)
+    with np.load(path) as data:
+        return {
+            "x": dataset.load(pair[0]),
+            "y": dataset.load(pair[1]),
+            "feat_x": data["feat_x"],
+            "feat_y": data["feat_y"],
+            "low_x": _restored(data, "x"),
+            "low_y": _restored(data, "y"),
+            "low_map": data["low_map"],
+            "status": str(data["status"]),
+            "solve_s": float(data["solve_s"]),
+        }
+
+
+def _certify(args, pair: tuple[str, str], path: Path) -> None:
+    """Features, decimation and the certified solve of one pair, saved to ``path``."""
+    from spidermatch.pipeline import MatchSettings, match
+
+    x, y, feat_x, feat_y = load_pair_with_features(args.data, pair, args.features, args.checkpoint)
+    result = match(x.mesh, y.mesh, feat_x, feat_y, MatchSettings(resolution=args.resolution, dense=None))
+    result.raise_for_status()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(
+        path,
+        feat_x=feat_x,
+        feat_y=feat_y,
+        low_map=result.low_map,
+        status=result.solve.status,
+        solve_s=result.timings["solve"],
+        gap=result.solve.gap,
+        **_decimated("x", result.source),
+        **_decimated("y", result.target),
+    )
+
+
+def _decimated(tag: str, decimated: Decimated) -> dict:
+    mesh = decimated.mesh
+    return {f"{tag}_verts": mesh.verts, f"{tag}_faces": mesh.faces, f"{tag}_to_full": decimated.to_full}
+
+
+def _restored(data, tag: str) -> Decimated:
+    return Decimated(Mesh(data[f"{tag}_verts"], data[f"{tag}_faces"], tag), data[f"{tag}_to_full"])
+
+
+def measure_pair(text: str, certified: dict, variants: list[str], overrides: dict) -> list[dict]:
+    """One row per variant plus the nearest-neighbour map and the sparse certified map."""
+    x, y = certified["x"], certified["y"]
+    source, target = x.mesh.centred(), y.mesh.centred()
+    maps, rows = {}, []
+    for name in variants:
+        settings = DenseSettings(**{**VARIANTS[name], **overrides})
+        inputs = (source, target, certified["low_x"], certified["low_y"], certified["low_map"])
+        features = (certified["feat_x"], certified["feat_y"])
+        start = time.perf_counter()
+        dense = densify(*inputs, *features, settings)
+        seconds = time.perf_counter() - start
+        tracemalloc.start()  # a second, traced run: tracing slows allocations, so it is not timed
+        densify(*inputs, *features, settings)
+        peak = tracemalloc.get_traced_memory()[1] / 2**20
+        tracemalloc.stop()
+        maps[name] = dense.vertex
+        figures = consistency(source, target, dense.points(target), dense.face, dense.bary).as_dict()
+        rows.append({"pair": text, "method": name, **figures, "time_s": seconds, "peak_mib": peak})
+    nearest = feature_nearest_neighbours(certified["feat_x"], certified["feat_y"])
+    maps["nearest_neighbour"] = nearest
+    rows.append(
+        {
+            "pair": text,
+            "method": "nearest_neighbour",
+            **vertex_map_consistency(source, target, nearest).as_dict(),
+        }
+    )
+    errors = geodesic_errors(maps, x.corr, y.corr, target)
+    for row in rows:
+        row["geodesic_error"] = float(errors[row["method"]].mean())
+    rows.append({"pair": text, "method": "sparse_certified", "geodesic_error": _sparse_error(certified)})
+    for row in rows:
+        print(_format(row), flush=True)
+    return rows
+
+
+def _sparse_error(certified: dict) -> float:
+    """Error of the certified low-resolution map at its own vertices (the match command's figure)."""
+    x, y = certified["x"], certified["y"]
+    pairs_x = certified["low_x"].to_full
+    pairs_y = certified["low_y"].to_full[certified["low_map"]]
+    return sparse_map_errors(pairs_x, pairs_y, x.mesh, x.corr, y.corr, y.mesh).mean
+
+
+def _format(row: dict) -> str:
+    cells = [f"{row['pair']:<22}", f"{row['method']:<20}"]
+    for name in FIELDS[2:]:
+        value = row.get(name)
+        cells.append(f"{name} {value:.4f}" if isinstance(value, float) else f"{name} -")
+    return "  ".join(cells)
+
+
+def write_results(args, rows: list[dict], overrides: dict) -> None:
+    """Print per-method means, write the JSON (rows + means) and the CSV (rows)."""
+    methods = list(dict.fromkeys(row["method"] for row in rows))
+    means = []
+    for method in methods:
+        mine = [row for row in rows if row["method"] == method]
+        mean = {"pair": "mean", "method": method}
+        for name in FIELDS[2:]:
+            values = [row[name] for row in mine if row.get(name) is not None]
+            mean[name] = float(np.mean(values)) if values else None
+        if mine[0].get("time_s") is not None:
+            mean["time_s_max"] = float(max(row["time_s"] for row in mine))
+            mean["peak_mib_max"] = float(max(row["peak_mib"] for row in mine))
+        means.append(mean)
+        print(_format(mean))
+    out = Path(args.out or f"bench/results/dense_map_faust_val_{args.resolution}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    peak_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    payload = {
+        "argv": sys.argv,
+        "resolution": args.resolution,
+        "features": args.features,
+        "checkpoint": args.checkpoint,
+        "settings": overrides,
+        "variants": {v: VARIANTS[v] for v in args.variants},
+        "process_peak_rss_gib": peak_rss,
+        "rows": rows,
+        "means": means,
+    }
+    out.with_suffix(".json").write_text(json.dumps(payload, indent=2) + "\n")
+    with out.with_suffix(".csv").open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(FIELDS), extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows + means)
+    print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.csv')}")
+
+
+if __name__ == "__main__":
+    main()

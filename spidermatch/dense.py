@@ -1,0 +1,360 @@
+"""Densification: a map for every full-resolution source vertex from the certified low-resolution one.
+
+Methods (``DenseSettings.method``):
+
+``interp``
+    Each full-resolution source vertex is projected onto the low-resolution source
+    surface (triangle + barycentric coordinates). The triangle's three certified
+    images (low-resolution target vertices) are blended with the same barycentric
+    weights. The blend lies on the low-resolution target surface; it is carried to
+    the full-resolution target through the target's own projection onto its
+    low-resolution surface (the full-resolution triangle whose projection contains
+    the blend, with the same barycentric coordinates).
+``interp_features``
+    ``interp``, then among the full-resolution target vertices within a local radius
+    (a multiple of the low-resolution edge length there) of the interpolated point,
+    the one with the smallest feature distance plus a distance penalty.
+``zoomout``
+    ZoomOut spectral upsampling (Melzi et al. 2019) started from the ``interp`` map:
+    alternately fit a functional map in the first k eigenfunctions and re-read the
+    point map by nearest neighbours in the spectral embedding, k growing.
+``zoomout_local``
+    As ``zoomout``, but each vertex may only go to a target vertex within a local
+    radius of its ``interp`` image (a neighbourhood-preserving spectral refinement).
+``zoomout_accept``
+    ``zoomout`` proposes, and a proposal is accepted only within the local radius of
+    the ``interp`` image; elsewhere the ``interp`` image is kept.
+
+Every method pins the low-resolution source vertices to their certified images:
+full-resolution vertex ``low_x.to_full[i]`` goes to ``low_y.to_full[low_map[i]]``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from spidermatch.mesh import Mesh
+from spidermatch.remesh import Decimated
+from spidermatch.surface import (
+    closest_surface_points,
+    closest_triangle_points,
+    nearest_corner,
+    surface_positions,
+    vertex_points,
+)
+
+logger = logging.getLogger(__name__)
+
+METHODS = ("interp", "interp_features", "zoomout", "zoomout_local", "zoomout_accept")
+
+
+@dataclass(frozen=True)
+class DenseSettings:
+    """Parameters of the densification.
+
+    Attributes
+    ----------
+    method : str
+        One of :data:`METHODS`.
+    radius : float
+        Search radius around the interpolated image, in local low-resolution edge lengths.
+    distance_weight : float
+        ``interp_features``: weight of (distance / radius)^2 against the feature
+        distance ``1 - cos`` of the L2-normalised descriptors.
+    n_neighbours : int
+        Target vertices considered inside the radius (the nearest ones).
+    spectral_start, spectral_stop, spectral_step : int
+        ZoomOut's eigenfunction counts: start, stop (inclusive), step.
+    spectral_feature_weight : float
+        Weight of the descriptors appended to the spectral embedding (0: pure ZoomOut).
+    smoothing : int
+        Rounds of neighbour averaging of the image points (certified ones held fixed),
+        then one projection onto the target surface.
+
+    """
+
+    method: str = "zoomout_local"
+    radius: float = 1.0
+    distance_weight: float = 1.0
+    n_neighbours: int = 32
+    spectral_start: int = 20
+    spectral_stop: int = 100
+    spectral_step: int = 5
+    spectral_feature_weight: float = 0.0
+    smoothing: int = 3
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"unknown dense method {self.method!r}; choose from {METHODS}")
+        if self.radius <= 0 or self.n_neighbours < 1:
+            raise ValueError("dense radius must be > 0 and n_neighbours >= 1")
+        if not 0 < self.spectral_start <= self.spectral_stop or self.spectral_step < 1:
+            raise ValueError("dense spectral schedule needs 0 < start <= stop and step >= 1")
+
+
+@dataclass(frozen=True, eq=False)
+class DenseMap:
+    """A map of every full-resolution source vertex onto the full-resolution target.
+
+    Attributes
+    ----------
+    vertex : np.ndarray, shape (V_X,), int64
+        Target vertex of each original source vertex.
+    face : np.ndarray, shape (V_X,), int64
+        Target face containing each image point.
+    bary : np.ndarray, shape (V_X, 3), float64
+        Barycentric coordinates of each image point in ``face`` (rows sum to one).
+    method : str
+        The method that made it.
+
+    """
+
+    vertex: np.ndarray
+    face: np.ndarray
+    bary: np.ndarray
+    method: str
+
+    def points(self, target: Mesh) -> np.ndarray:
+        """3D image points on ``target``, shape (V_X, 3)."""
+        return surface_positions(target, self.face, self.bary)
+
+
+def densify(
+    source: Mesh,
+    target: Mesh,
+    low_x: Decimated,
+    low_y: Decimated,
+    low_map: np.ndarray,
+    source_features: np.ndarray,
+    target_features: np.ndarray,
+    settings: DenseSettings | None = None,
+    spectra: tuple | None = None,
+) -> DenseMap:
+    """Dense map of every vertex of ``source`` from the certified low-resolution map.
+
+    Parameters
+    ----------
+    source, target : Mesh
+        Full-resolution meshes (V_X, V_Y vertices) in the frame of ``low_x``/``low_y``
+        (i.e. centred as :func:`spidermatch.pipeline.match` does).
+    low_x, low_y : Decimated
+        The decimated meshes and their (V_low,) maps to full-resolution vertices.
+    low_map : np.ndarray, shape (V_X_low,)
+        Certified low-resolution target vertex of each low-resolution source vertex.
+    source_features : np.ndarray, shape (V_X, D)
+    target_features : np.ndarray, shape (V_Y, D)
+    settings : DenseSettings
+    spectra : tuple, optional
+        ``(evecs_x (V_X, K), mass_x (V_X,), evecs_y (V_Y, K))`` for the ZoomOut methods;
+        computed (and cached) with :func:`spectral_basis` if not given.
+
+    Returns
+    -------
+    DenseMap
+
+    """
+    settings = settings or DenseSettings()
+    low_map = np.asarray(low_map, dtype=np.int64)
+    face, bary, radius = interpolated_points(source, target, low_x, low_y, low_map)
+    radius = settings.radius * radius
+    if settings.method == "interp":
+        vertex = nearest_corner(target, face, bary)
+    elif settings.method == "interp_features":
+        points = surface_positions(target, face, bary)
+        fx, fy = _unit_rows(source_features), _unit_rows(target_features)
+        vertex = feature_refined_vertices(target, points, radius, fx, fy, settings)
+        face, bary = vertex_points(target, vertex)
+    else:
+        start = nearest_corner(target, face, bary)
+        candidates = None
+        if settings.method == "zoomout_local":
+            points = surface_positions(target, face, bary)
+            index, _, inside = local_candidates(target, points, radius, settings.n_neighbours)
+            candidates = np.where(inside, index, index[:, :1])
+        features = (source_features, target_features)
+        vertex = spectral_vertices(source, target, start, candidates, features, settings, spectra)
+        if settings.method == "zoomout_accept":
+            points = surface_positions(target, face, bary)
+            far = np.linalg.norm(target.verts[vertex] - points, axis=1) > radius
+            vertex[far] = start[far]
+        face, bary = vertex_points(target, vertex)
+    dense = pin_certified(DenseMap(vertex, face, bary, settings.method), target, low_x, low_y, low_map)
+    if settings.smoothing > 0:
+        dense = smoothed(dense, source, target, low_x.to_full, settings.smoothing)
+        dense = pin_certified(dense, target, low_x, low_y, low_map)
+    return dense
+
+
+def smoothed(dense: DenseMap, source: Mesh, target: Mesh, fixed: np.ndarray, rounds: int) -> DenseMap:
+    """Average each image point with its source neighbours' images ``rounds`` times, then project.
+
+    Each round moves a point half way to the mean image of its source 1-ring; the
+    points of the ``fixed`` source vertices (V_fixed,) do not move.
+    """
+    import scipy.sparse as sp
+
+    edges = source.edges
+    n = source.n_verts
+    adjacency = sp.coo_matrix(
+        (np.ones(2 * len(edges)), (edges.reshape(-1), edges[:, ::-1].reshape(-1))), (n, n)
+    )
+    adjacency = sp.diags(1.0 / np.maximum(np.asarray(adjacency.sum(axis=1)).ravel(), 1.0)) @ adjacency.tocsr()
+    points = dense.points(target)
+    anchored = points[fixed].copy()
+    for _ in range(rounds):
+        points = 0.5 * points + 0.5 * (adjacency @ points)
+        points[fixed] = anchored
+    face, bary = closest_surface_points(target, points)
+    return DenseMap(nearest_corner(target, face, bary), face, bary, dense.method)
+
+
+def interpolated_points(
+    source: Mesh, target: Mesh, low_x: Decimated, low_y: Decimated, low_map: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Method ``interp``: barycentric transfer through the certified low-resolution triangles.
+
+    Returns
+    -------
+    face : np.ndarray, shape (V_X,)
+        Full-resolution target face of each image point.
+    bary : np.ndarray, shape (V_X, 3)
+    local_edge : np.ndarray, shape (V_X,)
+        Mean length of the low-resolution target edges at the three images (the local scale).
+
+    """
+    low_face, low_bary = closest_surface_points(low_x.mesh, source.verts, clip=False)
+    images = low_map[low_x.mesh.faces[low_face]]
+    blended = np.einsum("nk,nkd->nd", low_bary, low_y.mesh.verts[images])
+    # Invert the target's own projection onto its low-resolution surface: locate the blend
+    # among the projected full-resolution triangles and carry its barycentric coordinates
+    # back to the full-resolution triangle (the identity when source = target).
+    target_face, target_bary = closest_surface_points(low_y.mesh, target.verts, clip=False)
+    projected = surface_positions(low_y.mesh, target_face, target_bary)
+    face, bary = closest_triangle_points(projected, target.faces, blended)
+    local_edge = mean_incident_edge_length(low_y.mesh)[images].mean(axis=1)
+    return face, bary, local_edge
+
+
+def mean_incident_edge_length(mesh: Mesh) -> np.ndarray:
+    """Mean length of the edges at each vertex, shape (V,)."""
+    edges = mesh.edges
+    length = np.linalg.norm(mesh.verts[edges[:, 0]] - mesh.verts[edges[:, 1]], axis=1)
+    total = np.bincount(edges.reshape(-1), np.repeat(length, 2), minlength=mesh.n_verts)
+    count = np.bincount(edges.reshape(-1), minlength=mesh.n_verts)
+    return total / np.maximum(count, 1)
+
+
+def _unit_rows(features: np.ndarray) -> np.ndarray:
+    features = np.asarray(features, dtype=np.float64)
+    return features / np.maximum(np.linalg.norm(features, axis=1, keepdims=True), 1e-12)
+
+
+def local_candidates(target: Mesh, points: np.ndarray, radius: np.ndarray, k: int):
+    """Nearest ``k`` target vertices of each point and which lie within ``radius``.
+
+    Returns
+    -------
+    index : np.ndarray, shape (N, k)
+    distance : np.ndarray, shape (N, k)
+    inside : np.ndarray, shape (N, k), bool
+        Within the point's radius; the nearest vertex always counts as inside.
+
+    """
+    k = min(k, target.n_verts)
+    distance, index = cKDTree(target.verts).query(points, k=k)
+    distance, index = distance.reshape(len(points), k), index.reshape(len(points), k)
+    inside = distance <= np.asarray(radius)[:, None]
+    inside[:, 0] = True
+    return index, distance, inside
+
+
+def feature_refined_vertices(
+    target: Mesh,
+    points: np.ndarray,
+    radius: np.ndarray,
+    source_unit: np.ndarray,
+    target_unit: np.ndarray,
+    settings: DenseSettings,
+) -> np.ndarray:
+    """Method ``interp_features``: best feature match near each interpolated point.
+
+    Cost of target vertex y for source vertex x with interpolated point p:
+    ``(1 - <f_x, f_y>) + distance_weight * (|p - y| / radius)^2`` over the vertices
+    within ``radius`` of p (unit-norm descriptors f).
+
+    Returns
+    -------
+    np.ndarray, shape (V_X,), int64
+
+    """
+    index, distance, inside = local_candidates(target, points, radius, settings.n_neighbours)
+    similarity = np.einsum("nd,nkd->nk", source_unit, target_unit[index])
+    cost = 1.0 - similarity + settings.distance_weight * (distance / radius[:, None]) ** 2
+    cost[~inside] = np.inf
+    return index[np.arange(len(points)), np.argmin(cost, axis=1)].astype(np.int64)
+
+
+def spectral_vertices(
+    source: Mesh,
+    target: Mesh,
+    start: np.ndarray,
+    candidates: np.ndarray | None,
+    features: tuple[np.ndarray, np.ndarray],
+    settings: DenseSettings,
+    spectra: tuple | None = None,
+) -> np.ndarray:
+    """Methods ``zoomout``/``zoomout_local``: ZoomOut from the vertex map ``start`` (V_X,).
+
+    The eigenfunctions are scaled by sqrt(area) so that the descriptor weight
+    ``spectral_feature_weight`` means the same on every shape.
+    """
+    from spidermatch.zoomout import spectral_basis, zoomout
+
+    stop = settings.spectral_stop
+    if spectra is None:
+        evecs_x, mass_x = spectral_basis(source, stop)
+        evecs_y, _ = spectral_basis(target, stop)
+    else:
+        evecs_x, mass_x, evecs_y = spectra
+    stop = min(stop, evecs_x.shape[1], evecs_y.shape[1])
+    scale_x, scale_y = np.sqrt(source.area), np.sqrt(target.area)
+    extra = None
+    if settings.spectral_feature_weight > 0:
+        weight = settings.spectral_feature_weight
+        extra = (weight * _unit_rows(features[0]), weight * _unit_rows(features[1]))
+    schedule = range(min(settings.spectral_start, stop), stop + 1, settings.spectral_step)
+    return zoomout(
+        evecs_x[:, :stop] * scale_x,
+        mass_x / scale_x**2,
+        evecs_y[:, :stop] * scale_y,
+        start,
+        schedule,
+        candidates,
+        extra,
+    )
+
+
+def pin_certified(
+    dense: DenseMap, target: Mesh, low_x: Decimated, low_y: Decimated, low_map: np.ndarray
+) -> DenseMap:
+    """Put the certified matches back: ``low_x.to_full[i]`` -> ``low_y.to_full[low_map[i]]``.
+
+    Where two low-resolution source vertices share one nearest full-resolution vertex,
+    the later one wins (the decimation makes this rare).
+    """
+    vertex, face, bary = dense.vertex.copy(), dense.face.copy(), dense.bary.copy()
+    anchors, images = low_x.to_full, low_y.to_full[low_map]
+    vertex[anchors] = images
+    face[anchors], bary[anchors] = vertex_points(target, images)
+    return DenseMap(vertex, face, bary, dense.method)
+
+
+def feature_nearest_neighbours(source_features: np.ndarray, target_features: np.ndarray) -> np.ndarray:
+    """The features' own dense map: most similar (cosine) target vertex per source vertex, (V_X,)."""
+    from spidermatch.zoomout import nearest_rows
+
+    return nearest_rows(_unit_rows(source_features), _unit_rows(target_features))

@@ -1,0 +1,160 @@
+"""Points on a triangle surface: closest points, barycentric coordinates, nearest vertices.
+
+A point on a mesh is stored as a face index (N,) and barycentric coordinates (N, 3)
+with respect to that face's three vertices (rows sum to one, entries >= 0).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from spidermatch.mesh import Mesh
+
+# Candidate faces per query point: the faces whose centroids are nearest.
+DEFAULT_CANDIDATES = 16
+
+
+def barycentric_coordinates(triangles: np.ndarray, points: np.ndarray, clip: bool = True) -> np.ndarray:
+    """Barycentric coordinates of ``points`` in the planes of ``triangles``.
+
+    Parameters
+    ----------
+    triangles : np.ndarray, shape (N, 3, 3)
+    points : np.ndarray, shape (N, 3)
+
+    clip : bool
+        Clip to [0, 1] and renormalise (points are expected on or next to their
+        triangle); without clipping, the coordinates of the orthogonal projection onto
+        the triangle's plane (they sum to one and may be negative).
+
+    Returns
+    -------
+    np.ndarray, shape (N, 3)
+        A degenerate triangle gives its first vertex.
+
+    """
+    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    v0, v1, v2 = b - a, c - a, points - a
+    d00 = np.einsum("ij,ij->i", v0, v0)
+    d01 = np.einsum("ij,ij->i", v0, v1)
+    d11 = np.einsum("ij,ij->i", v1, v1)
+    d20 = np.einsum("ij,ij->i", v2, v0)
+    d21 = np.einsum("ij,ij->i", v2, v1)
+    denom = d00 * d11 - d01 * d01
+    ok = denom > 1e-300
+    safe = np.where(ok, denom, 1.0)
+    v = np.where(ok, (d11 * d20 - d01 * d21) / safe, 0.0)
+    w = np.where(ok, (d00 * d21 - d01 * d20) / safe, 0.0)
+    bary = np.stack([1.0 - v - w, v, w], axis=1)
+    if not clip:
+        return bary
+    bary = np.clip(bary, 0.0, None)
+    return bary / np.maximum(bary.sum(axis=1, keepdims=True), 1e-300)
+
+
+def closest_surface_points(
+    mesh: Mesh, points: np.ndarray, n_candidates: int = DEFAULT_CANDIDATES, clip: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """Closest point of ``mesh`` to each query point, as face + barycentric coordinates.
+
+    The search is over the ``n_candidates`` faces with the nearest centroids plus
+    every face around the nearest vertex (exact for points near a reasonably
+    shaped surface, which is the use here: points on or next to the mesh).
+
+    Parameters
+    ----------
+    mesh : Mesh
+    points : np.ndarray, shape (N, 3)
+    n_candidates : int
+    clip : bool
+        False: the barycentric coordinates of the projection onto the closest face's
+        plane instead of the closest point itself (no collapse of the points beyond a
+        convex edge onto that edge; see :func:`barycentric_coordinates`).
+
+    Returns
+    -------
+    face : np.ndarray, shape (N,), int64
+    bary : np.ndarray, shape (N, 3), float64
+
+    """
+    return closest_triangle_points(mesh.verts, mesh.faces, points, n_candidates, clip)
+
+
+def closest_triangle_points(
+    verts: np.ndarray,
+    faces: np.ndarray,
+    points: np.ndarray,
+    n_candidates: int = DEFAULT_CANDIDATES,
+    clip: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`closest_surface_points` on raw arrays (V, 3), (F, 3); degenerate triangles allowed."""
+    from trimesh.triangles import closest_point
+
+    points = np.asarray(points, dtype=np.float64)
+    candidates = _candidate_faces(verts, faces, points, n_candidates)
+    n, k = candidates.shape
+    triangles = verts[faces[candidates.reshape(-1)]]
+    closest = closest_point(triangles, np.repeat(points, k, axis=0)).reshape(n, k, 3)
+    distance = np.linalg.norm(closest - points[:, None, :], axis=2)
+    best = np.argmin(distance, axis=1)
+    rows = np.arange(n)
+    face = candidates[rows, best]
+    if clip:
+        bary = barycentric_coordinates(verts[faces[face]], closest[rows, best])
+    else:
+        bary = barycentric_coordinates(verts[faces[face]], points, clip=False)
+    return face.astype(np.int64), bary
+
+
+def _candidate_faces(
+    verts: np.ndarray, faces: np.ndarray, points: np.ndarray, n_candidates: int
+) -> np.ndarray:
+    """(N, C) face indices: nearest centroids, then the faces of the nearest vertex (padded)."""
+    centroids = verts[faces].mean(axis=1)
+    k = min(n_candidates, len(faces))
+    _, by_centroid = cKDTree(centroids).query(points, k=k)
+    by_centroid = np.asarray(by_centroid).reshape(len(points), k)
+    _, nearest_vertex = cKDTree(verts).query(points)
+    ring = face_table(faces, len(verts))[nearest_vertex]
+    ring = np.where(ring >= 0, ring, ring[:, :1])
+    return np.concatenate([by_centroid, ring], axis=1)
+
+
+def vertex_face_table(mesh: Mesh) -> np.ndarray:
+    """Faces around each vertex, shape (V, max valence), padded with -1."""
+    return face_table(mesh.faces, mesh.n_verts)
+
+
+def face_table(faces: np.ndarray, n_verts: int) -> np.ndarray:
+    """Faces (F, 3) around each of ``n_verts`` vertices, shape (V, max valence), padded with -1."""
+    corner_vertex = faces.reshape(-1)
+    corner_face = np.repeat(np.arange(len(faces)), 3)
+    order = np.argsort(corner_vertex, kind="stable")
+    counts = np.bincount(corner_vertex, minlength=n_verts)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    slot = np.arange(order.size) - np.repeat(starts, counts)
+    table = np.full((n_verts, max(int(counts.max()), 1)), -1, dtype=np.int64)
+    table[corner_vertex[order], slot] = corner_face[order]
+    return table
+
+
+def surface_positions(mesh: Mesh, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """3D positions of points given as face (N,) + barycentric (N, 3), shape (N, 3)."""
+    return np.einsum("nk,nkd->nd", bary, mesh.verts[mesh.faces[face]])
+
+
+def nearest_corner(mesh: Mesh, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """The vertex of each point's face nearest (Euclidean) to the point, shape (N,), int64."""
+    corners = mesh.faces[face]
+    positions = surface_positions(mesh, face, bary)
+    distance = np.linalg.norm(mesh.verts[corners] - positions[:, None, :], axis=2)
+    return corners[np.arange(len(face)), np.argmin(distance, axis=1)].astype(np.int64)
+
+
+def vertex_points(mesh: Mesh, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Surface-point form of vertices: an incident face each and a one-hot bary, (N,), (N, 3)."""
+    vertices = np.asarray(vertices, dtype=np.int64)
+    face = vertex_face_table(mesh)[vertices, 0]
+    bary = (mesh.faces[face] == vertices[:, None]).astype(np.float64)
+    return face, bary

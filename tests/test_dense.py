@@ -1,0 +1,96 @@
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from spidermatch.dense import METHODS, DenseSettings, densify, feature_nearest_neighbours
+from spidermatch.metrics import consistency, geodesic_errors, vertex_map_consistency
+from spidermatch.remesh import decimate
+from spidermatch.surface import closest_surface_points, surface_positions
+from spidermatch.synthetic import creature_pair_ground_truth, make_creature
+from spidermatch.zoomout import zoomout
+
+
+@pytest.fixture(scope="module")
+def creature_pair():
+    """Two posed creatures (~1500 vertices), their 150-face decimations and a low-res map from the truth."""
+    x, y = make_creature(1500, seed=0), make_creature(1500, seed=1)
+    low_x, low_y = decimate(x.mesh, 150), decimate(y.mesh, 150)
+    truth = creature_pair_ground_truth(x, y)
+    _, low_map = cKDTree(low_y.mesh.verts).query(y.mesh.verts[truth[low_x.to_full]])
+    return x, y, low_x, low_y, np.asarray(low_map), truth
+
+
+@pytest.fixture(scope="module")
+def wks_features(creature_pair):
+    from features.extractor import WKSExtractor
+
+    x, y = creature_pair[:2]
+    extractor = WKSExtractor(n_descr=64, n_eig=64, use_cache=False)
+    return extractor(x.mesh), extractor(y.mesh)
+
+
+def test_settings_are_checked():
+    with pytest.raises(ValueError, match="unknown dense method"):
+        DenseSettings(method="magic")
+    with pytest.raises(ValueError, match="radius"):
+        DenseSettings(radius=0)
+
+
+def test_closest_points_of_vertices_are_the_vertices(rng):
+    mesh = make_creature(600, seed=3).mesh
+    face, bary = closest_surface_points(mesh, mesh.verts)
+    assert np.allclose(surface_positions(mesh, face, bary), mesh.verts, atol=1e-9)
+    assert np.allclose(bary.sum(axis=1), 1.0) and (bary >= 0).all()
+
+
+def test_interp_maps_a_shape_onto_itself_by_the_identity():
+    mesh = make_creature(1200, seed=2).mesh
+    low = decimate(mesh, 150)
+    features = mesh.verts.copy()
+    identity = np.arange(low.mesh.n_verts)
+    dense = densify(mesh, mesh, low, low, identity, features, features, DenseSettings("interp", smoothing=0))
+    assert np.mean(dense.vertex == np.arange(mesh.n_verts)) > 0.98
+    assert np.abs(dense.points(mesh) - mesh.verts).max() < 0.05 * np.sqrt(mesh.area)
+    smooth = densify(mesh, mesh, low, low, identity, features, features, DenseSettings("interp", smoothing=3))
+    moved = np.linalg.norm(smooth.points(mesh) - mesh.verts, axis=1)
+    # Averaging then projecting can land some points of thin limbs of this coarse mesh far away.
+    assert np.mean(moved < 0.05 * np.sqrt(mesh.area)) > 0.9
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_one_row_per_source_vertex_and_certified_matches_kept(creature_pair, wks_features, method):
+    x, y, low_x, low_y, low_map, _ = creature_pair
+    settings = DenseSettings(method, spectral_start=6, spectral_stop=30, spectral_step=6)
+    dense = densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features, settings)
+    n = x.mesh.n_verts
+    assert dense.vertex.shape == (n,) and dense.face.shape == (n,) and dense.bary.shape == (n, 3)
+    assert dense.vertex.dtype == np.int64 and dense.method == method
+    assert np.array_equal(dense.vertex[low_x.to_full], low_y.to_full[low_map])
+    assert np.allclose(dense.bary.sum(axis=1), 1.0) and (dense.bary >= -1e-12).all()
+    assert (y.mesh.faces[dense.face] == dense.vertex[:, None]).any(axis=1).all()
+
+
+def test_dense_map_beats_the_features_nearest_neighbours(creature_pair, wks_features):
+    x, y, low_x, low_y, low_map, truth = creature_pair
+    dense = densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features)
+    nearest = feature_nearest_neighbours(*wks_features)
+    refs = np.arange(0, x.mesh.n_verts, 3)
+    errors = geodesic_errors({"dense": dense.vertex, "nn": nearest}, refs, truth[refs], y.mesh)
+    assert errors["dense"].mean() < 0.5 * errors["nn"].mean()
+    ours = consistency(x.mesh, y.mesh, dense.points(y.mesh), dense.face, dense.bary)
+    theirs = vertex_map_consistency(x.mesh, y.mesh, nearest)
+    assert ours.tears < theirs.tears and ours.flips < theirs.flips
+
+
+def test_zoomout_keeps_the_identity_of_a_shape_onto_itself():
+    from spidermatch.operators import compute_operators
+
+    mesh = make_creature(500, seed=4).mesh
+    ops = compute_operators(mesh, k=30)
+    start = np.arange(mesh.n_verts)
+    mapped = zoomout(ops.evecs, ops.mass, ops.evecs, start, range(5, 31, 5))
+    assert np.mean(mapped == start) > 0.99
+    candidates = np.stack([start, np.roll(start, 1)], axis=1)
+    assert (
+        np.mean(zoomout(ops.evecs, ops.mass, ops.evecs, start, range(5, 31, 5), candidates) == start) > 0.99
+    )

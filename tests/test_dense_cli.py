@@ -1,0 +1,51 @@
+import csv
+import json
+
+import numpy as np
+from hydra import compose, initialize_config_module
+
+from spidermatch.batch import SUMMARY_COLUMNS, summarise, summary_row
+from spidermatch.cli import run_match
+from spidermatch.dense_report import read_dense_map
+
+SMALL = ["data.n_verts=700", "data.resolution=60", "output.png=false"]
+
+
+def config(overrides):
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        return compose(config_name="match", overrides=overrides)
+
+
+def test_match_writes_a_dense_map_of_every_source_vertex(tmp_path):
+    assert run_match(config(SMALL), tmp_path) == 0
+    result = json.loads((tmp_path / "result.json").read_text())
+    low_pairs = np.loadtxt(tmp_path / "matches.csv", delimiter=",", skiprows=1, dtype=int)
+    rows = list(csv.reader((tmp_path / "dense_matches.csv").open()))
+    assert rows[0] == ["source_vertex", "target_vertex"]
+    dense = np.array(rows[1:], dtype=int)
+    n_source = dense.shape[0]
+    assert np.array_equal(dense[:, 0], np.arange(n_source))
+    assert np.array_equal(dense[low_pairs[:, 0], 1], low_pairs[:, 1])
+    stored = read_dense_map(tmp_path / "dense_map.npz")
+    assert np.array_equal(stored.vertex, dense[:, 1])
+    assert stored.face.shape == (n_source,) and stored.bary.shape == (n_source, 3)
+    assert result["dense"]["method"] == stored.method and "dense" in result["timings_s"]
+    for name in ("dense", "nearest_neighbour"):
+        figures = result["dense"][name]
+        assert set(figures) == {"tears", "flips", "flipped", "degenerate", "geodesic_error"}
+        assert 0 <= figures["tears"] <= 1 and 0 <= figures["flips"] <= 1
+    assert np.load(tmp_path / "dense_geodesic_errors.npy").shape == (1000,)
+    row = summary_row("a", "b", result)
+    assert set(row) == set(SUMMARY_COLUMNS)
+    assert row["dense_error"] == result["dense"]["dense"]["geodesic_error"]
+    assert row["nn_tears"] == result["dense"]["nearest_neighbour"]["tears"]
+    assert summarise([row], 1)["dense_error"]["n"] == 1
+
+
+def test_dense_map_can_be_turned_off(tmp_path):
+    assert run_match(config(SMALL + ["dense.enabled=false"]), tmp_path) == 0
+    result = json.loads((tmp_path / "result.json").read_text())
+    assert "dense" not in result and "dense" not in result["timings_s"]
+    assert not (tmp_path / "dense_matches.csv").exists() and not (tmp_path / "dense_map.npz").exists()
+    assert (tmp_path / "matches.csv").is_file()
+    assert summary_row("a", "b", result)["dense_error"] is None
