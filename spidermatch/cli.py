@@ -231,7 +231,7 @@ def _write_matching(cfg, output_dir: Path, result: MatchResult, inputs: MatchInp
         np.save(output_dir / "geodesic_errors.npy", evaluation.errors)
         logger.info("mean geodesic error against ground truth: %.4f", evaluation.mean)
     if cfg.output.png:
-        _write_pngs(output_dir, result, inputs, pairs, report)
+        _write_pngs(output_dir, result, inputs, pairs, report, bool(cfg.output.get("viewer", True)))
     if not result.solve.proven_optimal:
         logger.warning(
             "the solver stopped early: this matching is NOT proven optimal (gap %.2e)", result.solve.gap
@@ -239,28 +239,34 @@ def _write_matching(cfg, output_dir: Path, result: MatchResult, inputs: MatchInp
 
 
 def _write_pngs(
-    output_dir: Path, result: MatchResult, inputs: MatchInputs, pairs: np.ndarray, report: dict
+    output_dir: Path,
+    result: MatchResult,
+    inputs: MatchInputs,
+    pairs: np.ndarray,
+    report: dict,
+    viewer: bool = True,
 ) -> None:
-    """``correspondence.png`` (colour transferred source -> target) and ``spider_curve.png``.
+    """``correspondence.png``, ``spider_curve.png``, ``error.png`` (with ground truth), ``viewer.html``.
 
-    ``pairs`` (N, 2) are the full-resolution (source, target) matches of ``result``.
+    The pictures use ``result.dense_map`` (V_src,) when the result has one, else ``pairs``
+    (N, 2), the full-resolution (source, target) matches of ``result``.
     """
-    from spidermatch.plot import save_correspondence_png, save_curve_png
+    from spidermatch.figures import MatchPictures, map_errors, status_line, write_match_pictures
 
-    title = f"{inputs.description} | {report['status']}, gap {report.get('gap') or 0:.1e}"
-    paths = (
-        save_correspondence_png(
-            inputs.source.centred(),
-            inputs.target.centred(),
-            pairs[:, 0],
-            pairs[:, 1],
-            output_dir / "correspondence.png",
-            title,
-        ),
-        save_curve_png(result.source.mesh, result.curve.vertices, output_dir / "spider_curve.png"),
+    dense_map = getattr(result, "dense_map", None)
+    pictures = MatchPictures(
+        inputs.source.centred(),
+        inputs.target.centred(),
+        result.source.mesh,
+        result.curve.vertices,
+        pairs if dense_map is None else np.asarray(dense_map),
+        inputs.description,
+        status_line(report),
     )
-    for path in paths:
-        logger.info("wrote %s", path)
+    errors = None
+    if inputs.source_corr is not None:
+        errors = map_errors(pictures, inputs.source_corr, inputs.target_corr)
+    write_match_pictures(output_dir, pictures, errors, viewer)
 
 
 class FeatureMemo:

@@ -143,7 +143,7 @@ def transfer_colours(source_colours: np.ndarray, target: Mesh, matches: np.ndarr
 
 
 def error_colormap():
-    """The error heat map's colours: pale yellow (0) through orange to dark purple (not black, so shape shows)."""
+    """Error heat map colours: pale yellow (0), orange, dark purple (not black, so the shape shows)."""
     from matplotlib import colormaps
     from matplotlib.colors import ListedColormap
 
@@ -501,13 +501,12 @@ def save_curve_png(
 
     curve_vertices = np.asarray(curve_vertices, dtype=np.int64)
     n_repeated = int((np.bincount(curve_vertices, minlength=mesh.n_verts) > 1).sum())
-    title = title or (
-        f"SpiderCurve: {len(curve_vertices)} positions, {n_repeated} self-intersections (dots); "
-        "dashed: behind the surface"
-    )
+    title = title or f"SpiderCurve: {len(curve_vertices)} positions, {n_repeated} self-intersections (dots)"
+    key = "solid: in front of the surface, dashed: behind it"
+    status = f"{status} | {key}" if status else key
     views, centre = mesh_views(mesh), _bbox_centre(mesh)
     extents = [_extent(mesh, view, centre) for view in views]
-    figure, axes = _panel_figure(extents, [view.label for view in views], 1 + int(bool(status)))
+    figure, axes = _panel_figure(extents, [view.label for view in views], 2)
     grey = np.full((mesh.n_verts, 3), 0.82)
     for ax, view in zip(axes, views):
         camera = draw_mesh(ax, mesh, grey, view, centre)
