@@ -108,8 +108,8 @@ def save_viewer_html(
         "yaw": float(np.radians(view.azimuth)),
         "pitch": float(-np.radians(view.elevation)),
     }
-    # "</" inside the JSON would end the <script> element that holds it.
-    payload = json.dumps(data, separators=(",", ":")).replace("</", "<\\/")
+    # No "<" in the embedded JSON: "</script>" or "<!--" in a title must not end or change the element.
+    payload = json.dumps(data, separators=(",", ":")).replace("<", "\\u003c")
     page = TEMPLATE.read_text(encoding="utf-8")
     page = page.replace("__PAGE_TITLE__", html.escape(title or "spidermatch viewer")).replace(
         "__DATA__", payload
