@@ -167,12 +167,25 @@ def short_label(text: str, max_chars: int) -> str:
     return text[: (keep + 1) // 2] + "\u2026" + text[len(text) - keep // 2 :]
 
 
-def _suptitle(figure, title: str, status: str) -> None:
-    """Two lines at the top: the (shortened) title, then the status line on its own."""
-    width_chars = int(figure.get_figwidth() * 72 / (0.6 * TITLE_FONT_SIZE))
-    lines = [short_label(line, width_chars) for line in (title, status) if line]
-    if lines:
-        figure.suptitle("\n".join(lines), fontsize=TITLE_FONT_SIZE, y=0.995, va="top")
+def title_lines(title: str, status: str, max_chars: int) -> list[str]:
+    """The lines of a figure title: the title shortened to one line, the status wrapped, never cut.
+
+    The status is broken only at its `` | `` separators, so status and gap (which come
+    first) always stay whole and on their own line.
+    """
+    lines = [short_label(title, max_chars)] if title else []
+    current = ""
+    for part in status.split(" | ") if status else []:
+        candidate = f"{current} | {part}" if current else part
+        if current and len(candidate) > max_chars:
+            lines.append(current)
+            candidate = part
+        current = candidate
+    return lines + ([current] if current else [])
+
+
+def _title_chars(figure_width_in: float) -> int:
+    return int(figure_width_in * 72 / (0.6 * TITLE_FONT_SIZE))
 
 
 # ----------------------------------------------------------------------------- projection
@@ -246,7 +259,9 @@ def draw_mesh(ax, mesh: Mesh, vertex_colours: np.ndarray, view: View, centre: np
 # ----------------------------------------------------------------------------- figures
 
 
-def _panel_figure(extents: list[np.ndarray], labels: list[str], title_lines: int, colourbar: bool = False):
+def _panel_figure(
+    extents: list[np.ndarray], labels: list[str], title: str, status: str, colourbar: bool = False
+):
     """A figure with one axes per panel, each as wide as its content's aspect ratio needs.
 
     Parameters
@@ -255,16 +270,18 @@ def _panel_figure(extents: list[np.ndarray], labels: list[str], title_lines: int
         Per panel, [[x_min, y_min], [x_max, y_max]] of what it shows.
     labels : list of str
         Panel captions (drawn under each panel).
-    title_lines : int
-        Lines of title to leave room for.
+    title, status : str
+        The title lines (see :func:`title_lines`), drawn above the panels.
     """
     import matplotlib.pyplot as plt
 
     boxes = [_panel_box(low, high) for low, high in extents]
-    gap, top, bottom = 0.15, 0.2 + 0.22 * title_lines, 0.3
+    gap, bottom = 0.15, 0.3
     bar = 0.9 if colourbar else 0.0
     content_width = sum(width for width, _ in boxes) + gap * (len(boxes) - 1)
     figure_width = max(content_width + 2 * gap + bar, 4.5)
+    lines = title_lines(title, status, _title_chars(figure_width))
+    top = 0.2 + 0.22 * len(lines)
     figure_height = PANEL_HEIGHT_IN + top + bottom
     figure = plt.figure(figsize=(figure_width, figure_height))
     left = (figure_width - bar - content_width) / 2
@@ -282,6 +299,8 @@ def _panel_figure(extents: list[np.ndarray], labels: list[str], title_lines: int
         figure.text((left + width / 2) / figure_width, 0.1 / figure_height, label, ha="center", fontsize=8)
         axes.append(ax)
         left += width + gap
+    if lines:
+        figure.suptitle("\n".join(lines), fontsize=TITLE_FONT_SIZE, y=0.995, va="top")
     return figure, axes
 
 
@@ -306,13 +325,12 @@ def _render_panels(panels, title: str, status: str, path, colourbar=None) -> Pat
 
     centres = [_bbox_centre(mesh) for mesh, _, _, _ in panels]
     extents = [_extent(mesh, view, centre) for (mesh, _, view, _), centre in zip(panels, centres)]
-    n_lines = int(bool(title)) + int(bool(status))
-    figure, axes = _panel_figure(extents, [label for *_, label in panels], n_lines, colourbar is not None)
+    labels = [label for *_, label in panels]
+    figure, axes = _panel_figure(extents, labels, title, status, colourbar is not None)
     for ax, (mesh, colours, view, _), centre in zip(axes, panels, centres):
         draw_mesh(ax, mesh, colours, view, centre)
     if colourbar is not None:
         colourbar(figure)
-    _suptitle(figure, title, status)
     path = Path(path)
     figure.savefig(path, dpi=110)
     plt.close(figure)
@@ -506,12 +524,11 @@ def save_curve_png(
     status = f"{status} | {key}" if status else key
     views, centre = mesh_views(mesh), _bbox_centre(mesh)
     extents = [_extent(mesh, view, centre) for view in views]
-    figure, axes = _panel_figure(extents, [view.label for view in views], 2)
+    figure, axes = _panel_figure(extents, [view.label for view in views], title, status)
     grey = np.full((mesh.n_verts, 3), 0.82)
     for ax, view in zip(axes, views):
         camera = draw_mesh(ax, mesh, grey, view, centre)
         _draw_curve(ax, mesh, curve_vertices, view, centre, camera)
-    _suptitle(figure, title, status)
     path = Path(path)
     figure.savefig(path, dpi=110)
     plt.close(figure)

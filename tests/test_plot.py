@@ -15,6 +15,7 @@ from spidermatch.plot import (
     save_error_png,
     short_label,
     spread_to_vertices,
+    title_lines,
     transfer_colours,
 )
 from spidermatch.synthetic import creature_pair_ground_truth, make_creature
@@ -108,6 +109,17 @@ def test_short_label_keeps_file_names_and_cuts_the_middle():
     cut = short_label("x" * 50 + "MIDDLE" + "y" * 50, 30)
     assert len(cut) == 30 and cut.startswith("xxx") and cut.endswith("yyy") and "\u2026" in cut
     assert short_label("built-in synthetic pair a -> b", 80) == "built-in synthetic pair a -> b"
+
+
+def test_title_lines_wrap_the_status_at_separators_and_never_cut_it():
+    status = "optimal, gap 1.0e-04 | 250 faces, wks features | mean geodesic error 0.2163 over 127 points"
+    lines = title_lines("/data/off/tr_reg_070.off -> /data/off/tr_reg_071.off", status, 60)
+    assert lines == [
+        "tr_reg_070.off -> tr_reg_071.off",
+        "optimal, gap 1.0e-04 | 250 faces, wks features",
+        "mean geodesic error 0.2163 over 127 points",
+    ]
+    assert title_lines("", "optimal, gap 0", 5) == ["optimal, gap 0"]
 
 
 def test_occluded_points_are_those_behind_a_nearer_triangle():
