@@ -220,6 +220,7 @@ def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -
 
 def _write_matching(cfg, output_dir: Path, result: MatchResult, inputs: MatchInputs, report: dict) -> None:
     pairs = result.full_pairs
+    picture_errors = None  # (source vertices, errors) of the map the pictures show
     if cfg.output.matches_csv:
         write_matches(output_dir / "matches.csv", pairs)
         logger.info("wrote %s (%d matches)", output_dir / "matches.csv", len(pairs))
@@ -229,9 +230,12 @@ def _write_matching(cfg, output_dir: Path, result: MatchResult, inputs: MatchInp
         )
         report["geodesic_error"] = {"mean": evaluation.mean, "n_points": int(evaluation.errors.size)}
         np.save(output_dir / "geodesic_errors.npy", evaluation.errors)
+        if getattr(result, "dense_map", None) is None:
+            picture_errors = (pairs[:, 0], evaluation.errors)
         logger.info("mean geodesic error against ground truth: %.4f", evaluation.mean)
     if cfg.output.png:
-        _write_pngs(output_dir, result, inputs, pairs, report, bool(cfg.output.get("viewer", True)))
+        viewer = bool(cfg.output.get("viewer", True))
+        _write_pngs(output_dir, result, inputs, pairs, report, viewer, picture_errors)
     if not result.solve.proven_optimal:
         logger.warning(
             "the solver stopped early: this matching is NOT proven optimal (gap %.2e)", result.solve.gap
@@ -245,11 +249,13 @@ def _write_pngs(
     pairs: np.ndarray,
     report: dict,
     viewer: bool = True,
+    errors: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> None:
     """``correspondence.png``, ``spider_curve.png``, ``error.png`` (with ground truth), ``viewer.html``.
 
     The pictures use ``result.dense_map`` (V_src,) when the result has one, else ``pairs``
-    (N, 2), the full-resolution (source, target) matches of ``result``.
+    (N, 2), the full-resolution (source, target) matches of ``result``. ``errors``
+    (source vertices (N,), geodesic errors (N,)) of that map are computed here when not given.
     """
     from spidermatch.figures import MatchPictures, map_errors, status_line, write_match_pictures
 
@@ -263,8 +269,7 @@ def _write_pngs(
         inputs.description,
         status_line(report),
     )
-    errors = None
-    if inputs.source_corr is not None:
+    if errors is None and inputs.source_corr is not None:
         errors = map_errors(pictures, inputs.source_corr, inputs.target_corr)
     write_match_pictures(output_dir, pictures, errors, viewer)
 

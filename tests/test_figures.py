@@ -57,3 +57,11 @@ def test_status_line_always_has_status_and_gap():
         "optimal, gap 1.0e-04 | 250 faces, wks features"
     )
     assert status_line({"status": "no_solution", "gap": None}) == "no_solution, gap unknown"
+
+
+def test_given_errors_are_drawn_without_recomputing_them(tmp_path, pair):
+    inputs, low, truth = pair
+    pairs = np.stack([low.to_full, truth[low.to_full]], axis=1)
+    given = (pairs[:, 0], np.full(len(pairs), 0.123))
+    _write_pngs(tmp_path, fake_result(low), inputs, pairs, {"status": "optimal", "gap": 0.0}, True, given)
+    assert "mean 0.1230" in (tmp_path / "viewer.html").read_text()
