@@ -20,7 +20,14 @@ from pathlib import Path
 import numpy as np
 
 from spidermatch.mesh import Mesh
-from spidermatch.plot import ERROR_UNITS, error_colours, mesh_views, position_colours, transfer_colours
+from spidermatch.plot import (
+    ERROR_UNITS,
+    error_colours,
+    mesh_views,
+    position_colours,
+    spread_to_vertices,
+    transfer_colours,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -146,8 +153,6 @@ def save_match_viewer(
     vmax : float
         Error drawn with the darkest colour.
     """
-    from spidermatch.plot import spread_to_vertices
-
     colours_x = position_colours(source.verts)
     layers_x = {TRANSFER_LAYER: colours_x}
     layers_y = {TRANSFER_LAYER: transfer_colours(colours_x, target, matches)}
