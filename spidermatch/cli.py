@@ -277,38 +277,48 @@ def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -
         return error.exit_code
     status = report["status"]
     report["status"] = "writing"  # 'optimal' only once every requested output is written
-    _write_matching(cfg, output_dir, result, inputs, report)
+    picture_errors = _write_matching(cfg, output_dir, result, inputs, report)
     if result.dense is not None:
-        _write_dense(output_dir, result, inputs, (feat_x, feat_y), report)
-    report.update(status=status, exit_code=0)
-    return 0
-
-
-def _write_matching(cfg, output_dir: Path, result: MatchResult, inputs: MatchInputs, report: dict) -> None:
-    pairs = result.full_pairs
-    if cfg.output.matches_csv:
-        write_matches(output_dir / "matches.csv", pairs)
-        logger.info("wrote %s (%d matches)", output_dir / "matches.csv", len(pairs))
-    if inputs.source_corr is not None:
-        evaluation = sparse_map_errors(
-            pairs[:, 0], pairs[:, 1], inputs.source, inputs.source_corr, inputs.target_corr, inputs.target
-        )
-        report["geodesic_error"] = {"mean": evaluation.mean, "n_points": int(evaluation.errors.size)}
-        with guard.atomic_path(output_dir / "geodesic_errors.npy") as tmp:
-            np.save(tmp, evaluation.errors)
-        logger.info("mean geodesic error against ground truth: %.4f", evaluation.mean)
+        dense_errors = _write_dense(output_dir, result, inputs, (feat_x, feat_y), report)
+        picture_errors = None if dense_errors is None else (inputs.source_corr, dense_errors)
     if cfg.output.png:
-        _write_pngs(output_dir, result, inputs, pairs, report)
+        viewer = bool(cfg.output.get("viewer", True))
+        _write_pngs(output_dir, result, inputs, {**report, "status": status}, viewer, picture_errors)
     if not result.solve.proven_optimal:
         logger.warning(
             "the solver stopped early: this matching is NOT proven optimal (gap %.2e)", result.solve.gap
         )
+    report.update(status=status, exit_code=0)
+    return 0
+
+
+def _write_matching(
+    cfg, output_dir: Path, result: MatchResult, inputs: MatchInputs, report: dict
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """``matches.csv`` and, with ground truth, the sparse map's errors; returns (vertices, errors) or None."""
+    pairs = result.full_pairs
+    if cfg.output.matches_csv:
+        write_matches(output_dir / "matches.csv", pairs)
+        logger.info("wrote %s (%d matches)", output_dir / "matches.csv", len(pairs))
+    if inputs.source_corr is None:
+        return None
+    evaluation = sparse_map_errors(
+        pairs[:, 0], pairs[:, 1], inputs.source, inputs.source_corr, inputs.target_corr, inputs.target
+    )
+    report["geodesic_error"] = {"mean": evaluation.mean, "n_points": int(evaluation.errors.size)}
+    with guard.atomic_path(output_dir / "geodesic_errors.npy") as tmp:
+        np.save(tmp, evaluation.errors)
+    logger.info("mean geodesic error against ground truth: %.4f", evaluation.mean)
+    return pairs[:, 0], evaluation.errors
 
 
 def _write_dense(
     output_dir: Path, result: MatchResult, inputs: MatchInputs, features: tuple, report: dict
-) -> None:
-    """``dense_matches.csv``, ``dense_map.npz`` and the dense figures in ``report`` (see dense_report)."""
+) -> np.ndarray | None:
+    """``dense_matches.csv``, ``dense_map.npz`` and the dense figures in ``report`` (see dense_report).
+
+    Returns the dense map's geodesic errors (K,) at the reference points, or None without ground truth.
+    """
     from spidermatch.dense_report import dense_figures, write_dense_outputs
 
     for path in write_dense_outputs(output_dir, result.dense):
@@ -320,26 +330,39 @@ def _write_dense(
     if errors is not None:
         with guard.atomic_path(output_dir / "dense_geodesic_errors.npy") as tmp:
             np.save(tmp, errors)
+        logger.info("dense map: mean geodesic error %.4f over %d reference points", errors.mean(), errors.size)
+    return errors
 
 
 def _write_pngs(
-    output_dir: Path, result: MatchResult, inputs: MatchInputs, pairs: np.ndarray, report: dict
+    output_dir: Path,
+    result: MatchResult,
+    inputs: MatchInputs,
+    report: dict,
+    viewer: bool = True,
+    errors: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> None:
-    """``correspondence.png`` (colour transferred source -> target) and ``spider_curve.png``.
+    """``correspondence.png``, ``spider_curve.png``, ``error.png`` (with ground truth), ``viewer.html``.
 
-    ``pairs`` (N, 2) are the full-resolution (source, target) matches of ``result``.
+    The pictures use ``result.dense_map`` (V_src,) when the result has one, else the
+    full-resolution (source, target) matches (N, 2). ``errors`` (source vertices (N,), geodesic
+    errors (N,)) of that map are computed here when not given. ``report`` gives the title's status.
     """
-    from spidermatch.plot import save_correspondence_png, save_curve_png
+    from spidermatch.figures import MatchPictures, map_errors, status_line, write_match_pictures
 
-    title = f"{inputs.description} | {result.solve.status}, gap {report.get('gap') or 0:.1e}"
-    with guard.atomic_path(output_dir / "correspondence.png") as tmp:
-        save_correspondence_png(
-            inputs.source.centred(), inputs.target.centred(), pairs[:, 0], pairs[:, 1], tmp, title
-        )
-    logger.info("wrote %s", output_dir / "correspondence.png")
-    with guard.atomic_path(output_dir / "spider_curve.png") as tmp:
-        save_curve_png(result.source.mesh, result.curve.vertices, tmp)
-    logger.info("wrote %s", output_dir / "spider_curve.png")
+    dense_map = result.dense_map
+    pictures = MatchPictures(
+        inputs.source.centred(),
+        inputs.target.centred(),
+        result.source.mesh,
+        result.curve.vertices,
+        result.full_pairs if dense_map is None else dense_map,
+        inputs.description,
+        status_line(report),
+    )
+    if errors is None and inputs.source_corr is not None:
+        errors = map_errors(pictures, inputs.source_corr, inputs.target_corr)
+    write_match_pictures(output_dir, pictures, errors, viewer)
 
 
 class FeatureMemo:

@@ -31,6 +31,8 @@ def test_every_config_group_composes_and_runs(tmp_path, group):
     assert len(rows) - 1 == result["source_low_res"]["vertices"]
     assert (tmp_path / "correspondence.png").stat().st_size > 10_000
     assert (tmp_path / "spider_curve.png").stat().st_size > 10_000
+    assert (tmp_path / "error.png").stat().st_size > 10_000  # the demo has ground truth
+    assert (tmp_path / "viewer.html").stat().st_size > 10_000
 
 
 def test_user_files_with_ground_truth(tmp_path):
@@ -55,6 +57,7 @@ def test_user_files_with_ground_truth(tmp_path):
     assert pairs[:, 1].max() < shapes.load("creature_001").mesh.n_verts
     assert not (out / "correspondence.png").exists()
     assert not (out / "spider_curve.png").exists()
+    assert not (out / "viewer.html").exists()
 
 
 def test_bad_input_is_reported_with_exit_code_and_json(tmp_path):

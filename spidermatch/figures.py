@@ -1,0 +1,122 @@
+"""The pictures of one match run: correspondence, SpiderCurve, error heat map and HTML viewer."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spidermatch.guard import atomic_path
+from spidermatch.mesh import Mesh
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class MatchPictures:
+    """What the pictures of a match show.
+
+    Attributes
+    ----------
+    source, target : Mesh
+        Full-resolution meshes.
+    low_source : Mesh
+        The low-resolution source the SpiderCurve runs on.
+    curve_vertices : np.ndarray, shape (L,)
+        The SpiderCurve (vertices of ``low_source``).
+    matches : np.ndarray, shape (V_src,) or (N, 2)
+        Dense ``src_to_tgt`` map, or sparse (source, target) full-resolution pairs.
+    title, status : str
+        Title line (paths are shortened in the PNGs) and status line.
+    """
+
+    source: Mesh
+    target: Mesh
+    low_source: Mesh
+    curve_vertices: np.ndarray
+    matches: np.ndarray
+    title: str
+    status: str
+
+
+def status_line(report: dict) -> str:
+    """``optimal, gap 0.0e+00 | 1000 faces, wks features`` from a run's ``result.json`` figures."""
+    gap = report.get("gap")
+    parts = [f"{report.get('status', '?')}, gap " + (f"{gap:.1e}" if gap is not None else "unknown")]
+    if report.get("resolution"):
+        parts.append(f"{report['resolution']} faces, {report.get('features', '?')} features")
+    return " | ".join(parts)
+
+
+def map_errors(
+    pictures: MatchPictures, source_corr: np.ndarray, target_corr: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Geodesic error of the map at the source points where it can be judged.
+
+    Returns
+    -------
+    vertices : np.ndarray, shape (N,)
+        Source vertices: the reference points (dense map) or the matched vertices (pairs).
+    errors : np.ndarray, shape (N,)
+        Fraction of sqrt(target area).
+    """
+    from spidermatch.evaluate import dense_map_errors, sparse_map_errors
+
+    matches = np.asarray(pictures.matches)
+    if matches.ndim == 1:
+        evaluation = dense_map_errors(matches, source_corr, target_corr, pictures.target)
+        return np.asarray(source_corr), evaluation.errors
+    evaluation = sparse_map_errors(
+        matches[:, 0], matches[:, 1], pictures.source, source_corr, target_corr, pictures.target
+    )
+    return matches[:, 0], evaluation.errors
+
+
+def write_match_pictures(
+    output_dir: Path,
+    pictures: MatchPictures,
+    errors: tuple[np.ndarray, np.ndarray] | None = None,
+    viewer: bool = True,
+) -> list[Path]:
+    """Write ``correspondence.png``, ``spider_curve.png``, ``error.png`` (with errors) and ``viewer.html``.
+
+    Parameters
+    ----------
+    output_dir : Path
+    pictures : MatchPictures
+    errors : tuple of np.ndarray, optional
+        (source vertices (N,), geodesic errors (N,)), e.g. from :func:`map_errors`.
+    viewer : bool
+        Also write the interactive ``viewer.html``.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    from spidermatch.plot import save_correspondence_png, save_curve_png, save_error_png
+
+    output_dir = Path(output_dir)
+    p = pictures
+    jobs = [
+        ("correspondence.png", save_correspondence_png, (p.source, p.target, p.matches), (p.title, p.status)),
+        ("spider_curve.png", save_curve_png, (p.low_source, p.curve_vertices), ("", p.status)),
+    ]
+    if errors is not None:
+        jobs.append(("error.png", save_error_png, (p.source, *errors), (p.title, p.status)))
+    if viewer:
+        from spidermatch.viewer import save_match_viewer
+
+        jobs.append(("viewer.html", save_match_viewer, (p.source, p.target, p.matches), (p.title, p.status, errors)))
+    paths = []
+    for name, save, data, labels in jobs:
+        with atomic_path(output_dir / name) as tmp:  # no half picture is ever left; OSError -> OutputError
+            save(*data, tmp, *labels)
+        paths.append(output_dir / name)
+        logger.info("wrote %s", output_dir / name)
+    return paths
+    for path in paths:
+        logger.info("wrote %s", path)
+    return paths
