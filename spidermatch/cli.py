@@ -330,7 +330,9 @@ def _write_dense(
     if errors is not None:
         with guard.atomic_path(output_dir / "dense_geodesic_errors.npy") as tmp:
             np.save(tmp, errors)
-        logger.info("dense map: mean geodesic error %.4f over %d reference points", errors.mean(), errors.size)
+        logger.info(
+            "dense map: mean geodesic error %.4f over %d reference points", errors.mean(), errors.size
+        )
     return errors
 
 

@@ -109,7 +109,9 @@ def write_match_pictures(
     if viewer:
         from spidermatch.viewer import save_match_viewer
 
-        jobs.append(("viewer.html", save_match_viewer, (p.source, p.target, p.matches), (p.title, p.status, errors)))
+        jobs.append(
+            ("viewer.html", save_match_viewer, (p.source, p.target, p.matches), (p.title, p.status, errors))
+        )
     paths = []
     for name, save, data, labels in jobs:
         with atomic_path(output_dir / name) as tmp:  # no half picture is ever left; OSError -> OutputError
