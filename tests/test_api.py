@@ -59,7 +59,11 @@ def test_result_fields_and_direction(pair, from_paths):
     assert error_of(result.matches, pair.x, pair.y) < 0.3  # read the other way round it would be ~random
     assert result.resolution == RESOLUTION and result.features == "wks"
     assert {"features", "decimate", "solve", "check"} <= set(result.timings)
-    assert result.dense_map is None and result.p2p is None  # no dense map in this pipeline yet
+    # the dense map: a target vertex for every full-resolution source vertex, the certified ones kept
+    assert result.dense_map.dtype == np.int64 and result.dense_map.shape == (pair.x.mesh.n_verts,)
+    assert result.p2p is result.dense_map and result.dense.vertex.shape == result.dense_map.shape
+    assert result.dense_map.max() < pair.y.mesh.n_verts
+    np.testing.assert_array_equal(result.dense_map[result.matches[:, 0]], result.matches[:, 1])
 
 
 def test_reversed_pair_swaps_the_roles(pair):

@@ -8,7 +8,7 @@ from spidermatch.batch import SUMMARY_COLUMNS, summarise, summary_row
 from spidermatch.cli import run_match
 from spidermatch.dense_report import read_dense_map
 
-SMALL = ["data.n_verts=700", "data.resolution=60", "output.png=false"]
+SMALL = ["data.n_verts=700", "resolution=60", "output.png=false"]
 
 
 def config(overrides):

@@ -26,7 +26,7 @@ from spidermatch.resume import file_identity, rerun_reason
 from spidermatch.solve.highs import SolverOptionError, set_option
 from spidermatch.validate import topology
 
-SMALL = ["data.n_verts=700", "data.resolution=60", "output.png=false"]
+SMALL = ["data.n_verts=700", "resolution=60", "output.png=false"]
 
 
 def config(name, overrides):
@@ -224,7 +224,7 @@ def test_07_disk_full_while_writing_the_png(tmp_path, monkeypatch):
 
     monkeypatch.setattr(spidermatch.plot, "save_correspondence_png", full)
     folder = tmp_path / "run"
-    cfg = config("match", ["data.n_verts=700", "data.resolution=60"])
+    cfg = config("match", ["data.n_verts=700", "resolution=60"])
     assert run_match(cfg, folder) == guard.EXIT_OUTPUT_ERROR
     result = result_of(folder)
     assert result["status"] == "output_error" and result["proven_optimal"] is False
@@ -241,7 +241,7 @@ def match_command(*args):
 
 def run_until_solving(tmp_path, signum):
     folder = tmp_path / f"run_{signum}"
-    args = ["data.n_verts=2000", "data.resolution=200", "solver.strategy=plain", f"hydra.run.dir={folder}"]
+    args = ["data.n_verts=2000", "resolution=200", "solver.strategy=plain", f"hydra.run.dir={folder}"]
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).parents[1]), "SPIDERMATCH_CACHE_DIR": str(tmp_path)}
     process = subprocess.Popen(
         match_command(*args), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env

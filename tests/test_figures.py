@@ -21,20 +21,17 @@ def pair():
     return inputs, low, truth
 
 
-def fake_result(low, dense_map=None):
-    """What _write_pngs reads of a MatchResult (+ the dense map helper 'dense' adds)."""
+def fake_result(low, pairs, dense_map=None):
+    """What _write_pngs reads of a MatchResult: low-res source, curve, full-res pairs, dense map."""
     curve = SimpleNamespace(vertices=np.arange(low.mesh.n_verts))
-    result = SimpleNamespace(source=low, curve=curve)
-    if dense_map is not None:
-        result.dense_map = dense_map
-    return result
+    return SimpleNamespace(source=low, curve=curve, full_pairs=pairs, dense_map=dense_map)
 
 
 def test_pictures_use_the_dense_map_when_the_result_has_one(tmp_path, pair):
     inputs, low, truth = pair
     report = {"status": "optimal", "gap": 0.0, "resolution": 60, "features": "wks"}
     pairs = np.stack([low.to_full, truth[low.to_full]], axis=1)
-    _write_pngs(tmp_path, fake_result(low, dense_map=truth), inputs, pairs, report)
+    _write_pngs(tmp_path, fake_result(low, pairs, dense_map=truth), inputs, report)
     names = {path.name for path in tmp_path.iterdir()}
     assert names == {"correspondence.png", "spider_curve.png", "error.png", "viewer.html"}
     # the exact dense map has zero error at every reference point
@@ -44,7 +41,7 @@ def test_pictures_use_the_dense_map_when_the_result_has_one(tmp_path, pair):
 def test_pictures_fall_back_to_the_pairs_and_can_skip_the_viewer(tmp_path, pair):
     inputs, low, truth = pair
     pairs = np.stack([low.to_full, truth[low.to_full]], axis=1)
-    _write_pngs(tmp_path, fake_result(low), inputs, pairs, {"status": "feasible", "gap": 0.02}, viewer=False)
+    _write_pngs(tmp_path, fake_result(low, pairs), inputs, {"status": "feasible", "gap": 0.02}, viewer=False)
     assert {path.name for path in tmp_path.iterdir()} == {
         "correspondence.png",
         "spider_curve.png",
@@ -63,5 +60,5 @@ def test_given_errors_are_drawn_without_recomputing_them(tmp_path, pair):
     inputs, low, truth = pair
     pairs = np.stack([low.to_full, truth[low.to_full]], axis=1)
     given = (pairs[:, 0], np.full(len(pairs), 0.123))
-    _write_pngs(tmp_path, fake_result(low), inputs, pairs, {"status": "optimal", "gap": 0.0}, True, given)
+    _write_pngs(tmp_path, fake_result(low, pairs), inputs, {"status": "optimal", "gap": 0.0}, True, given)
     assert "mean 0.1230" in (tmp_path / "viewer.html").read_text()
