@@ -71,6 +71,8 @@ class MatchSettings:
     curve_augmented, target_augmented : bool
         Use augmented edges for the SpiderCurve's graph / the target's product edges.
     curve_seed : int
+    curve_matching : str
+        Odd-vertex matching of the SpiderCurve's Christofides tour: "greedy" or "blossom".
     loss : RobustLoss
     constraints : tuple of str
         Constraint families to impose (all four by default).
@@ -85,6 +87,7 @@ class MatchSettings:
     curve_augmented: bool = False
     target_augmented: bool = False
     curve_seed: int = 0
+    curve_matching: str = "greedy"
     loss: RobustLoss = field(default_factory=RobustLoss)
     constraints: tuple = FAMILIES
     solver: SolverOptions = field(default_factory=SolverOptions)
@@ -175,7 +178,9 @@ def prepare(
         low_x = decimate(source.centred(), settings.resolution, settings.decimation)
         low_y = decimate(target.centred(), settings.resolution, settings.decimation)
     with _stage(timings, "curve"):
-        curve = spider_curve(low_x.mesh, settings.curve_augmented, settings.curve_seed)
+        curve = spider_curve(
+            low_x.mesh, settings.curve_augmented, settings.curve_seed, settings.curve_matching
+        )
     with _stage(timings, "costs"):
         edges_y = low_y.mesh.augmented_edges if settings.target_augmented else low_y.mesh.edges
         graph = build_product_graph(curve.length, low_y.mesh.n_verts, edges_y)
