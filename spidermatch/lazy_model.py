@@ -150,6 +150,10 @@ class LazyModel:
         lower, upper = self.row_bounds
         return IlpModel(self.costs(columns), matrix, lower, upper, dict(self.row_families))
 
+    def full_model(self) -> IlpModel:
+        """Every column: the model of ``build_model`` (for strategies that need it whole)."""
+        return self.submodel(np.arange(self.n_vars))
+
     def coefficients(self, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Non-zeros (row, position in ``columns``, value) of the constraint columns of ``columns``."""
         layer, entry, next_layer = self.split(columns)

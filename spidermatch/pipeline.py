@@ -25,11 +25,12 @@ from spidermatch.correspondence import (
 from spidermatch.costs import RobustLoss, feature_cost_matrix, product_edge_costs
 from spidermatch.curve import SpiderCurve, spider_curve
 from spidermatch.ilp import FAMILIES, IlpModel, build_model
+from spidermatch.lazy_model import LazyModel
 from spidermatch.mesh import Mesh
 from spidermatch.product_graph import ProductGraph, build_product_graph
 from spidermatch.remesh import Decimated, decimate
 from spidermatch.solve.highs import SolveResult, SolverOptions
-from spidermatch.solve.strategies import solve_with_strategy
+from spidermatch.solve.strategies import LAZY_STRATEGIES, solve_with_strategy
 
 logger = logging.getLogger(__name__)
 
@@ -170,8 +171,12 @@ def prepare(
     target_features: np.ndarray,
     settings: MatchSettings,
     timings: dict,
-) -> tuple[Decimated, Decimated, SpiderCurve, ProductGraph, IlpModel]:
-    """Decimate, trace the curve, build the product graph, the costs and the ILP."""
+) -> tuple[Decimated, Decimated, SpiderCurve, ProductGraph, IlpModel | LazyModel]:
+    """Decimate, trace the curve, build the product graph, the costs and the ILP.
+
+    For a strategy in ``LAZY_STRATEGIES`` the ILP is a :class:`LazyModel` (feature costs only;
+    columns are built by the strategy); otherwise the full :class:`IlpModel`.
+    """
     _check_features(source, source_features, "source")
     _check_features(target, target_features, "target")
     with _stage(timings, "decimate"):
@@ -189,6 +194,14 @@ def prepare(
             low_resolution_features(target_features, low_y.to_full),
             settings.loss,
         )
+        if settings.strategy in LAZY_STRATEGIES:  # the full model is never built
+            lazy = LazyModel(
+                graph, curve, low_x.mesh.verts, low_y.mesh.verts, vertex_costs, tuple(settings.constraints)
+            )
+            logger.info(
+                "problem: curve length %d, %d columns, %d rows", curve.length, lazy.n_vars, lazy.n_rows
+            )
+            return low_x, low_y, curve, graph, lazy
         costs = product_edge_costs(graph, curve.vertices, low_x.mesh.verts, low_y.mesh.verts, vertex_costs)
     with _stage(timings, "build"):
         model = build_model(graph, curve, costs, tuple(settings.constraints))

@@ -1,0 +1,394 @@
+"""``colgen``: certify the SpiderMatch ILP without ever building its full model.
+
+Design
+------
+The full model has one column per product edge (3.7 M at 1000 faces, ~15 M at 2000),
+but an optimal path uses about one per curve position, and the LP relaxation needs
+few more. ``colgen`` works on a :class:`~spidermatch.lazy_model.LazyModel`, which
+holds only what defines the columns and produces any of them on demand:
+
+1. **Seed.** Per curve position the edges among the ``SEED_NEIGHBOURS`` targets of
+   lowest feature cost and their 1-ring, plus the *stay seed*: the stay edges at one
+   target vertex y0 in every layer. Alone, the stay seed is a solution of every
+   constraint family (one boundary crossing per layer, a closed flow, equal out-flows
+   in every layer, no counted edge for ANS) and of every connectivity cut (it has no
+   intra edges), so every restricted LP and MIP below is feasible.
+2. **Column generation for the LP.** Solve the restricted LP (all rows, the columns
+   built so far); price *every* column of the full model with the LP's row duals,
+   one block of layers at a time (:meth:`LazyModel.block_reduced_costs`); add the
+   most negative ones; repeat until no column outside has a negative reduced cost or
+   the Lagrangian bound below meets the restricted LP's value.
+3. **Incumbent.** A MIP at a 1 % gap over the columns of small reduced cost (found
+   by the same pricing pass), the LP support and the stay seed; when its incumbent
+   leaves too many columns to the fixing step, the column set grows by steps
+   (threshold doubled) and the MIP is run again from the incumbent.
+4. **Reduced-cost fixing and proof.** One more pricing pass keeps every column
+   whose reduced-cost bound does not exceed the incumbent U; the MIP over those
+   (with connectivity cuts, started from the incumbent) at the target gap.
+
+The bound
+---------
+Every row of the full model is present in every restricted model (rows that no
+built column touches are empty there), so the restricted LP's row duals ``y`` are
+multipliers for the full model's rows. They are sign-corrected as in
+:mod:`spidermatch.solve.fixing` and then, for **any** such ``y``,
+``L(y) = sum_i y_i b_i(y) + sum_j min(0, r_j)`` with ``r = c - A^T y`` summed over
+*all* columns j of the full model (built or not: the pricing pass generates each
+column's cost and coefficients exactly as ``build_model`` would) is a lower bound
+on every feasible x in [0, 1]^n; no property of the restricted LP or of HiGHS's
+tolerances is used. A solution that uses column j costs at least
+``L(y) + max(r_j, 0)``. The final MIP runs over a set C that contains every column
+with ``r_j <= U - L(y)``; its bound B_C holds for every solution using columns of C
+only (rows and connectivity cuts are valid for the full model), and every other
+solution costs at least ``L(y) + min_{j not in C} max(r_j, 0) > U``. So
+``min(B_C, L(y) + min_{j not in C} max(r_j, 0))`` is a lower bound for the full
+model, and HiGHS's bound enters through :func:`certified_mip_bound` as for ``rcfix``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.sparse as sp
+
+from spidermatch.curve import SpiderCurve
+from spidermatch.ilp import IlpModel
+from spidermatch.lazy_model import LazyModel
+from spidermatch.product_graph import INTRA, ProductGraph
+from spidermatch.solve.connectivity import detached_components
+from spidermatch.solve.fixing import sign_corrected_duals
+from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
+from spidermatch.solve.strategies import (
+    LP_EXTRA,
+    SEED_FRACTION,
+    SEED_GAP,
+    SEED_MIP_GAP,
+    CutPool,
+    count_fractional,
+    remaining,
+    solve_with_cuts,
+)
+
+logger = logging.getLogger(__name__)
+
+SEED_NEIGHBOURS = 6  # per source vertex: targets of lowest feature cost whose edges (and 1-ring) seed the LP
+BLOCK_COLUMNS = 1_000_000  # edges priced at once (~80 bytes each in flight)
+MAX_ADD = 100_000  # columns added per pricing round at most (the most negative ones)
+LP_REL_GAP = 1e-7  # column generation stops when the Lagrangian bound is this close to the LP value
+MAX_LP_ROUNDS = 200
+MAX_SURVIVOR_FRACTION = 0.25  # a larger fixing set means a poor incumbent: widen the incumbent MIP first
+MAX_INCUMBENT_ROUNDS = 4
+
+
+@dataclass(frozen=True, eq=False)
+class Pricing:
+    """One pricing pass over every column of the full model for fixed row multipliers.
+
+    Attributes
+    ----------
+    bound : float
+        ``L(y)``, a lower bound for the full model.
+    columns : np.ndarray, shape (k,)
+        Sorted edge ids with reduced cost at most ``cutoff`` (and not excluded).
+    reduced : np.ndarray, shape (k,)
+        Their reduced costs.
+    cutoff : float
+    min_outside : float
+        Smallest reduced cost of the columns not selected (and not excluded); inf if none.
+
+    """
+
+    bound: float
+    columns: np.ndarray
+    reduced: np.ndarray
+    cutoff: float
+    min_outside: float
+
+
+def price(
+    lazy: LazyModel,
+    y: np.ndarray,
+    threshold: float,
+    at_least: int = 0,
+    exclude: np.ndarray | None = None,
+) -> Pricing:
+    """Reduced costs of every column, block by block; keep those at most ``threshold``.
+
+    Parameters
+    ----------
+    lazy : LazyModel
+    y : np.ndarray, shape (n_rows,)
+        Sign-corrected row multipliers.
+    threshold : float
+    at_least : int
+        Raise the cutoff so that at least this many columns are selected (ties included).
+    exclude : np.ndarray, shape (n_vars,), bool, optional
+        Columns never selected nor counted in ``min_outside`` (they still count in the bound).
+
+    """
+    potentials = lazy.potentials(y)
+    block = lazy.graph.block_size
+    negative_sums, kept_ids, kept_reduced, min_outside = [], [], [], math.inf
+    for start, stop in lazy.layer_blocks(max(1, BLOCK_COLUMNS // block)):
+        reduced = lazy.block_reduced_costs(start, stop, potentials)
+        negative_sums.append(float(np.minimum(reduced, 0.0).sum()))
+        if exclude is not None:
+            reduced[exclude[start * block : stop * block]] = np.inf
+        cut = threshold
+        if at_least:
+            cut = max(
+                cut, np.partition(reduced, min(at_least, reduced.size) - 1)[min(at_least, reduced.size) - 1]
+            )
+        keep = reduced <= cut
+        kept_ids.append(np.flatnonzero(keep) + start * block)
+        kept_reduced.append(reduced[keep])
+        if not keep.all():
+            min_outside = min(min_outside, float(reduced[~keep].min()))
+    ids, reduced = np.concatenate(kept_ids), np.concatenate(kept_reduced)
+    cutoff = threshold
+    if at_least and ids.size > at_least:
+        cutoff = max(threshold, float(np.partition(reduced, at_least - 1)[at_least - 1]))
+    elif at_least:
+        cutoff = max(threshold, float(reduced.max(initial=-math.inf)))
+    selected = reduced <= cutoff
+    if not selected.all():
+        min_outside = min(min_outside, float(reduced[~selected].min()))
+    bound = lazy.row_term(y) + math.fsum(negative_sums)
+    return Pricing(bound, ids[selected], reduced[selected], cutoff, min_outside)
+
+
+def stay_seed(lazy: LazyModel) -> np.ndarray:
+    """Stay edges at the target vertex y0 of cheapest all-stay path, one per layer, shape (L,).
+
+    Together they satisfy CYC, CON, PES, ANS and every connectivity cut.
+    """
+    graph, c = lazy.graph, lazy.curve.vertices
+    step = np.linalg.norm(lazy.source_verts[c] - lazy.source_verts[np.roll(c, -1)], axis=1)
+    totals = step @ (lazy.vertex_costs[c] + lazy.vertex_costs[np.roll(c, -1)])  # (V_Y,)
+    y0 = int(np.argmin(totals))
+    stay_entry = int(
+        np.flatnonzero((graph.block_kind != INTRA) & (graph.block_src == y0) & (graph.block_dst == y0))[0]
+    )
+    return np.arange(graph.n_layers, dtype=np.int64) * graph.block_size + stay_entry
+
+
+def feature_seed(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarray:
+    """Edges between plausible targets of consecutive curve vertices, sorted edge ids (k,).
+
+    A target is plausible for source vertex p if it is among p's ``neighbours`` of lowest
+    feature cost R[p] or adjacent to one of them.
+    """
+    graph, costs = lazy.graph, lazy.vertex_costs
+    k = min(neighbours, graph.n_target)
+    nearest = np.argpartition(costs, k - 1, axis=1)[:, :k]
+    plausible = np.zeros(costs.shape, dtype=bool)
+    plausible[np.arange(costs.shape[0])[:, None], nearest] = True
+    edges = graph.target_edges
+    adjacency = sp.csr_matrix(
+        (np.ones(edges.shape[0]), (edges[:, 0], edges[:, 1])), shape=(graph.n_target,) * 2
+    )
+    plausible |= (sp.csr_matrix(plausible, dtype=np.float64) @ adjacency).toarray() > 0
+    chosen = []
+    block = graph.block_size
+    for start, stop in lazy.layer_blocks(max(1, BLOCK_COLUMNS // block)):
+        layer, entry, next_layer = lazy.split(np.arange(start * block, stop * block))
+        p, q = lazy.curve.vertices[layer], lazy.curve.vertices[next_layer]
+        keep = plausible[p, graph.block_src[entry]] & plausible[q, graph.block_dst[entry]]
+        chosen.append(np.flatnonzero(keep) + start * block)
+    return np.concatenate(chosen)
+
+
+@dataclass(frozen=True, eq=False)
+class ColgenLp:
+    """The LP relaxation solved by column generation.
+
+    Attributes
+    ----------
+    y : np.ndarray, shape (n_rows,)
+        Sign-corrected row multipliers of the last restricted LP.
+    bound : float
+        ``L(y)`` over every column of the full model.
+    value : float
+        The last restricted LP's optimum (an upper bound on the full LP's).
+    columns : np.ndarray, shape (k,)
+        Sorted edge ids built.
+    x : np.ndarray, shape (k,)
+        The restricted LP's solution on ``columns``.
+    rounds : int
+
+    """
+
+    y: np.ndarray
+    bound: float
+    value: float
+    columns: np.ndarray
+    x: np.ndarray
+    rounds: int
+
+    def support(self, tolerance: float = 1e-9) -> np.ndarray:
+        """Edge ids the LP solution uses, sorted."""
+        return self.columns[self.x > tolerance]
+
+
+class LpNotSolved(Exception):
+    """A restricted LP stopped (time limit) or failed; carries HiGHS's result."""
+
+    def __init__(self, result: SolveResult) -> None:
+        super().__init__(result.message)
+        self.result = result
+
+
+def _bounds_only(lazy: LazyModel) -> IlpModel:
+    lower, upper = lazy.row_bounds
+    return IlpModel(np.zeros(0), sp.csc_matrix((lazy.n_rows, 0)), lower, upper, {})
+
+
+def generate_columns(lazy: LazyModel, seed: np.ndarray, options: SolverOptions) -> ColgenLp:
+    """Solve the LP relaxation of the full model by column generation from ``seed`` (sorted ids)."""
+    lp_options = replace(options, presolve="off", extra={**options.extra, **LP_EXTRA})
+    session = HighsSession(lazy.submodel(seed), lp_options, relax=True)
+    order, built = [seed], np.zeros(lazy.n_vars, dtype=bool)
+    built[seed] = True
+    bounds = _bounds_only(lazy)
+    for round_number in range(1, MAX_LP_ROUNDS + 1):
+        result = session.run()
+        if result.status != "optimal":
+            raise LpNotSolved(result)
+        y = sign_corrected_duals(bounds, session.row_duals())
+        pricing = price(lazy, y, threshold=-1e-12 * max(abs(result.objective), 1.0), exclude=built)
+        new = pricing.columns
+        logger.info(
+            "colgen round %d: %d columns, LP %.8g, bound %.8g, %d priced negative",
+            round_number, int(built.sum()), result.objective, pricing.bound, new.size,
+        )  # fmt: skip
+        if new.size == 0 or relative_gap(result.objective, pricing.bound) <= LP_REL_GAP:
+            break
+        if new.size > MAX_ADD:
+            new = np.sort(new[np.argpartition(pricing.reduced, MAX_ADD - 1)[:MAX_ADD]])
+        session.add_columns(lazy.costs(new), lazy.submodel(new).matrix)
+        order.append(new)
+        built[new] = True
+    order = np.concatenate(order)
+    by_id = np.argsort(order)
+    return ColgenLp(y, pricing.bound, result.objective, order[by_id], result.x[by_id], round_number)
+
+
+def _lp_incumbent(lazy: LazyModel, lp: ColgenLp) -> np.ndarray | None:
+    """The LP solution as a full 0/1 vector if it is integral and one closed walk, else None."""
+    if count_fractional(lp.x) > 0:
+        return None
+    x = np.zeros(lazy.n_vars)
+    x[lp.columns] = np.rint(lp.x)
+    return None if detached_components(lazy.graph, x) else x
+
+
+def _restricted_mip(lazy, columns, options, incumbent, pool, layers) -> SolveResult:
+    pool.add_two_cycle_cuts(lazy.graph, layers, columns)
+    logger.info("colgen: MIP over %d of %d columns, gap %.2g", columns.size, lazy.n_vars, options.mip_rel_gap)
+    return solve_with_cuts(
+        None, lazy.graph, options, columns, incumbent, pool, restricted=lazy.submodel(columns)
+    )
+
+
+def _no_result(kind: str, message: str, lazy: LazyModel, start: float, bound: float = -math.inf):
+    return SolveResult(
+        kind,
+        None,
+        math.inf,
+        bound,
+        math.nan,
+        time.perf_counter() - start,
+        lazy.n_vars,
+        lazy.n_rows,
+        0,
+        message,
+    )
+
+
+def find_incumbent(lazy, lp, options, start, pool, layers, built):
+    """Step 3 of the module docstring: (incumbent or None, its fixing pass or None, last MIP result).
+
+    The column sets of the MIPs are appended to ``built``.
+    """
+    incumbent = _lp_incumbent(lazy, lp)
+    base = np.union1d(lp.support(), stay_seed(lazy))
+    threshold, result, fixing = SEED_GAP * abs(lp.bound), None, None
+    for attempt in range(1, MAX_INCUMBENT_ROUNDS + 1):
+        if incumbent is not None:
+            fixing = price(lazy, lp.y, objective_of(lazy, incumbent) - lp.bound)
+            logger.info(
+                "colgen: incumbent %.8g keeps %d columns", objective_of(lazy, incumbent), fixing.columns.size
+            )
+            if fixing.columns.size <= MAX_SURVIVOR_FRACTION * lazy.n_vars:
+                break
+            threshold *= 2.0  # a poor incumbent: grow the incumbent MIP's columns by one step
+        if attempt == MAX_INCUMBENT_ROUNDS:
+            break
+        seed = price(lazy, lp.y, threshold, at_least=int(SEED_FRACTION * lazy.n_vars))
+        columns = np.union1d(seed.columns, base)
+        built.append(columns)
+        if incumbent is not None:
+            columns = np.union1d(columns, np.flatnonzero(incumbent > 0.5))
+        gap = max(SEED_MIP_GAP, options.mip_rel_gap)
+        mip_options = replace(remaining(options, start), mip_rel_gap=gap)
+        result = _restricted_mip(lazy, columns, mip_options, incumbent, pool, layers)
+        if result.x is None:
+            break  # time limit: keep what there is
+        incumbent = result.x
+    if incumbent is not None and fixing is None:
+        fixing = price(lazy, lp.y, objective_of(lazy, incumbent) - lp.bound)
+    return incumbent, fixing, result
+
+
+def _count_distinct(column_sets: list[np.ndarray]) -> int:
+    return int(np.unique(np.concatenate(column_sets)).size)
+
+
+def objective_of(lazy: LazyModel, x: np.ndarray) -> float:
+    """Objective of a full 0/1 vector x (n_vars,)."""
+    used = np.flatnonzero(x > 0.5)
+    return float(lazy.costs(used) @ x[used])
+
+
+def solve_column_generation(
+    lazy: LazyModel, graph: ProductGraph, curve: SpiderCurve, options: SolverOptions
+) -> SolveResult:
+    """Column generation, reduced-cost fixing and a final MIP, certified for the full model."""
+    if not isinstance(lazy, LazyModel):
+        raise TypeError("the colgen strategy needs a LazyModel (the full model is never built)")
+    start = time.perf_counter()
+    seed = np.union1d(feature_seed(lazy), stay_seed(lazy))
+    try:
+        lp = generate_columns(lazy, seed, options)
+    except LpNotSolved as stopped:
+        kind = "no_solution" if stopped.result.status in ("no_solution", "feasible") else "error"
+        return _no_result(kind, f"restricted LP not solved: {stopped.result.message}", lazy, start)
+    logger.info(
+        "colgen LP: %d of %d columns in %d rounds, bound %.8g (%.1f s)",
+        lp.columns.size, lazy.n_vars, lp.rounds, lp.bound, time.perf_counter() - start,
+    )  # fmt: skip
+    pool, layers = CutPool(), np.flatnonzero(curve.is_intersection_layer)
+    built = [lp.columns]
+    incumbent, fixing, result = find_incumbent(lazy, lp, options, start, pool, layers, built)
+    if incumbent is None:  # stopped before any solution: only the LP bound is proven
+        return replace(
+            result, bound=lp.bound, gap=math.nan, wall_time=time.perf_counter() - start,
+            n_vars=lazy.n_vars, columns_built=_count_distinct(built),
+        )  # fmt: skip
+    columns = np.union1d(np.union1d(fixing.columns, lp.support()), np.flatnonzero(incumbent > 0.5))
+    built.append(columns)
+    final = _restricted_mip(lazy, columns, remaining(options, start), incumbent, pool, layers)
+    outside = lp.bound + max(fixing.min_outside, 0.0)
+    bound = min(final.bound, outside)
+    status, message = final.status, final.message
+    if final.status == "optimal" and outside < final.bound:
+        status, message = "feasible", "the fixing step did not cover every cheaper column"
+    logger.info("colgen: objective %.8g, bound for the full model %.8g", final.objective, bound)
+    return replace(
+        final, status=status, message=message, bound=bound, gap=relative_gap(final.objective, bound),
+        wall_time=time.perf_counter() - start, n_vars=lazy.n_vars, columns_built=_count_distinct(built),
+    )  # fmt: skip
