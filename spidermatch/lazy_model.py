@@ -150,9 +150,28 @@ class LazyModel:
         lower, upper = self.row_bounds
         return IlpModel(self.costs(columns), matrix, lower, upper, dict(self.row_families))
 
-    def full_model(self) -> IlpModel:
-        """Every column: the model of ``build_model`` (for strategies that need it whole)."""
-        return self.submodel(np.arange(self.n_vars))
+    def full_model(self, block_columns: int = 1_000_000) -> IlpModel:
+        """Every column: the model of ``build_model``, assembled one block of layers at a time.
+
+        Each block's columns go straight into compressed-column form with int32 row indices,
+        so only one block's coordinates are ever held in int64 (``build_model`` holds them all).
+        """
+        block = self.graph.block_size
+        indptr, indices, data, costs, nnz = [np.zeros(1, np.int64)], [], [], [], 0
+        for start, stop in self.layer_blocks(max(1, block_columns // block)):
+            part = self.submodel(np.arange(start * block, stop * block))
+            indptr.append(part.matrix.indptr[1:].astype(np.int64) + nnz)
+            indices.append(part.matrix.indices)
+            data.append(part.matrix.data)
+            costs.append(part.costs)
+            nnz += part.matrix.nnz
+        index_type = np.int32 if nnz < np.iinfo(np.int32).max else np.int64
+        matrix = sp.csc_matrix(
+            (np.concatenate(data), np.concatenate(indices), np.concatenate(indptr).astype(index_type)),
+            shape=(self.n_rows, self.n_vars),
+        )
+        lower, upper = self.row_bounds
+        return IlpModel(np.concatenate(costs), matrix, lower, upper, dict(self.row_families))
 
     def coefficients(self, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Non-zeros (row, position in ``columns``, value) of the constraint columns of ``columns``."""

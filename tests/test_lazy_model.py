@@ -51,3 +51,12 @@ def test_block_reduced_costs_equal_c_minus_a_transpose_y():
     potentials = lazy.potentials(y)
     got = np.concatenate([lazy.block_reduced_costs(a, b, potentials) for a, b in lazy.layer_blocks(7)])
     np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-10)
+
+
+def test_blockwise_full_model_equals_build_model():
+    lazy, model = small_problem()
+    blockwise = lazy.full_model(block_columns=5 * lazy.graph.block_size + 3)  # uneven blocks
+    assert blockwise.matrix.indices.dtype == np.int32
+    assert (blockwise.matrix != model.matrix).nnz == 0
+    np.testing.assert_allclose(blockwise.costs, model.costs, rtol=1e-12)
+    assert blockwise.row_families == model.row_families
