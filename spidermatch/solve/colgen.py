@@ -247,29 +247,79 @@ def _bounds_only(lazy: LazyModel) -> IlpModel:
     return IlpModel(np.zeros(0), sp.csc_matrix((lazy.n_rows, 0)), lower, upper, {})
 
 
+class RestrictedLp:
+    """The LP over the columns built so far and only the rows they touch, in one HiGHS session.
+
+    A row that no built column touches is ``0 = 0`` or ``0 <= 1``; leaving it out changes
+    neither the LP's optimum nor its other duals, and 0 is an optimal dual for it. Rows are
+    added (empty) when a new column first touches them, before the column itself.
+    """
+
+    def __init__(self, lazy: LazyModel, seed: np.ndarray, options: SolverOptions) -> None:
+        self.lazy = lazy
+        self.rows = np.zeros(0, dtype=np.int64)  # full-model row of each session row
+        self.position = np.full(lazy.n_rows, -1, dtype=np.int64)  # session row of each full-model row
+        sub = lazy.submodel(seed)
+        self._touch(sub.matrix.indices)
+        lower, upper = lazy.row_bounds
+        model = IlpModel(sub.costs, self._remap(sub.matrix), lower[self.rows], upper[self.rows], {})
+        self.session = HighsSession(model, options, relax=True)
+
+    def _touch(self, row_indices: np.ndarray) -> np.ndarray:
+        touched = np.unique(row_indices)
+        fresh = touched[self.position[touched] < 0]
+        self.position[fresh] = np.arange(self.rows.size, self.rows.size + fresh.size)
+        self.rows = np.concatenate([self.rows, fresh])
+        return fresh
+
+    def _remap(self, matrix: sp.csc_matrix) -> sp.csc_matrix:
+        indices = self.position[matrix.indices].astype(np.int32)
+        remapped = sp.csc_matrix(
+            (matrix.data, indices, matrix.indptr), shape=(self.rows.size, matrix.shape[1])
+        )
+        remapped.sort_indices()
+        return remapped
+
+    def add(self, columns: np.ndarray) -> None:
+        """Append the columns (edge ids, k) and any row they touch first."""
+        sub = self.lazy.submodel(columns)
+        fresh = self._touch(sub.matrix.indices)
+        if fresh.size:
+            lower, upper = self.lazy.row_bounds
+            empty = sp.csr_matrix((fresh.size, self.session.n_vars))
+            self.session.add_rows(empty, lower[fresh], upper[fresh])
+        self.session.add_columns(sub.costs, self._remap(sub.matrix))
+
+    def row_duals(self) -> np.ndarray:
+        """Duals for every row of the full model (n_rows,), 0 on the rows left out."""
+        y = np.zeros(self.lazy.n_rows)
+        y[self.rows] = self.session.row_duals()
+        return y
+
+
 def generate_columns(lazy: LazyModel, seed: np.ndarray, options: SolverOptions) -> ColgenLp:
     """Solve the LP relaxation of the full model by column generation from ``seed`` (sorted ids)."""
     lp_options = replace(options, presolve="off", extra={**options.extra, **LP_EXTRA})
-    session = HighsSession(lazy.submodel(seed), lp_options, relax=True)
+    restricted = RestrictedLp(lazy, seed, lp_options)
     order, built = [seed], np.zeros(lazy.n_vars, dtype=bool)
     built[seed] = True
     bounds = _bounds_only(lazy)
     for round_number in range(1, MAX_LP_ROUNDS + 1):
-        result = session.run()
+        result = restricted.session.run()
         if result.status != "optimal":
             raise LpNotSolved(result)
-        y = sign_corrected_duals(bounds, session.row_duals())
+        y = sign_corrected_duals(bounds, restricted.row_duals())
         pricing = price(lazy, y, threshold=-1e-12 * max(abs(result.objective), 1.0), exclude=built)
         new = pricing.columns
         logger.info(
-            "colgen round %d: %d columns, LP %.8g, bound %.8g, %d priced negative",
-            round_number, int(built.sum()), result.objective, pricing.bound, new.size,
+            "colgen round %d: %d columns, %d rows, LP %.8g, bound %.8g, %d priced negative",
+            round_number, int(built.sum()), restricted.rows.size, result.objective, pricing.bound, new.size,
         )  # fmt: skip
         if new.size == 0 or relative_gap(result.objective, pricing.bound) <= LP_REL_GAP:
             break
         if new.size > MAX_ADD:
             new = np.sort(new[np.argpartition(pricing.reduced, MAX_ADD - 1)[:MAX_ADD]])
-        session.add_columns(lazy.costs(new), lazy.submodel(new).matrix)
+        restricted.add(new)
         order.append(new)
         built[new] = True
     order = np.concatenate(order)
@@ -382,8 +432,11 @@ def solve_column_generation(
     columns = np.union1d(np.union1d(fixing.columns, lp.support()), np.flatnonzero(incumbent > 0.5))
     built.append(columns)
     final = _restricted_mip(lazy, columns, remaining(options, start), incumbent, pool, layers)
+    if final.x is None:  # stopped before HiGHS took the incumbent: report the incumbent itself
+        value = objective_of(lazy, incumbent)
+        final = replace(final, status="feasible", x=incumbent, objective=value, bound=lp.bound)
     outside = lp.bound + max(fixing.min_outside, 0.0)
-    bound = min(final.bound, outside)
+    bound = max(lp.bound, min(final.bound, outside))  # both are valid lower bounds
     status, message = final.status, final.message
     if final.status == "optimal" and outside < final.bound:
         status, message = "feasible", "the fixing step did not cover every cheaper column"
