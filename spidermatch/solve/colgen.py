@@ -13,36 +13,37 @@ holds only what defines the columns and produces any of them on demand:
    constraint family (one boundary crossing per layer, a closed flow, equal out-flows
    in every layer, no counted edge for ANS) and of every connectivity cut (it has no
    intra edges), so every restricted LP and MIP below is feasible.
-2. **Column generation for the LP.** Solve the restricted LP (all rows, the columns
-   built so far); price *every* column of the full model with the LP's row duals,
+2. **Column generation for the LP.** Solve the restricted LP (the columns built so
+   far, the rows they touch); price *every* column of the full model with the LP's row duals,
    one block of layers at a time (:meth:`LazyModel.block_reduced_costs`); add the
    most negative ones; repeat until no column outside has a negative reduced cost or
    the Lagrangian bound below meets the restricted LP's value.
-3. **Incumbent.** A MIP at a 1 % gap over the columns of small reduced cost (found
-   by the same pricing pass), the LP support and the stay seed; when its incumbent
-   leaves too many columns to the fixing step, the column set grows by steps
-   (threshold doubled) and the MIP is run again from the incumbent.
-4. **Reduced-cost fixing and proof.** One more pricing pass keeps every column
-   whose reduced-cost bound does not exceed the incumbent U; the MIP over those
-   (with connectivity cuts, started from the incumbent) at the target gap.
+3. **Growing MIPs.** With the final duals y and bound L = L(y), a MIP at the target gap
+   over the columns of reduced cost at most a threshold t (plus the LP support, the
+   stay seed and the incumbent's columns), started from the incumbent U. If U <= L + t,
+   every column that a solution of cost <= U could use is in the MIP (reduced-cost
+   fixing against U) and its proof covers the full model. Otherwise t grows to
+   min(4 t, U - L) and the next MIP starts from U: step by step, never all at once.
 
 The bound
 ---------
-Every row of the full model is present in every restricted model (rows that no
-built column touches are empty there), so the restricted LP's row duals ``y`` are
-multipliers for the full model's rows. They are sign-corrected as in
-:mod:`spidermatch.solve.fixing` and then, for **any** such ``y``,
+The restricted LP holds the rows its columns touch; a row no built column touches is
+``0 = 0`` or ``0 <= 1`` there, and 0 is an optimal dual for it. So its duals, extended
+by zeros, are multipliers ``y`` for every row of the full model. They are sign-corrected
+as in :mod:`spidermatch.solve.fixing` and then, for **any** such ``y``,
 ``L(y) = sum_i y_i b_i(y) + sum_j min(0, r_j)`` with ``r = c - A^T y`` summed over
 *all* columns j of the full model (built or not: the pricing pass generates each
-column's cost and coefficients exactly as ``build_model`` would) is a lower bound
-on every feasible x in [0, 1]^n; no property of the restricted LP or of HiGHS's
-tolerances is used. A solution that uses column j costs at least
-``L(y) + max(r_j, 0)``. The final MIP runs over a set C that contains every column
-with ``r_j <= U - L(y)``; its bound B_C holds for every solution using columns of C
-only (rows and connectivity cuts are valid for the full model), and every other
-solution costs at least ``L(y) + min_{j not in C} max(r_j, 0) > U``. So
-``min(B_C, L(y) + min_{j not in C} max(r_j, 0))`` is a lower bound for the full
-model, and HiGHS's bound enters through :func:`certified_mip_bound` as for ``rcfix``.
+column's cost and coefficients exactly as ``build_model`` would) is a lower bound on
+every feasible x in [0, 1]^n; no property of the restricted LP or of HiGHS's
+tolerances is used. A solution that uses column j costs at least ``L(y) + max(r_j, 0)``.
+A MIP runs over a set C (every MIP holds every row of the full model) that contains
+every column with ``r_j <= t``; its bound B_C holds for every solution using columns of
+C only (rows and connectivity cuts are valid for the full model), and every other
+solution costs at least ``O = L(y) + min_{j not in C} max(r_j, 0) > L(y) + t``. So
+``min(B_C, O)`` is a lower bound for the full model (and so is L(y) alone; the larger
+of the two is reported), with HiGHS's bound entering through
+:func:`certified_mip_bound` as for ``rcfix``. The incumbent is certified when ``O`` is
+at least B_C, which holds as soon as ``U <= L(y) + t``.
 """
 
 from __future__ import annotations
@@ -64,9 +65,6 @@ from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
 from spidermatch.solve.strategies import (
     LP_EXTRA,
-    SEED_FRACTION,
-    SEED_GAP,
-    SEED_MIP_GAP,
     CutPool,
     count_fractional,
     remaining,
@@ -80,8 +78,9 @@ BLOCK_COLUMNS = 1_000_000  # edges priced at once (~80 bytes each in flight)
 MAX_ADD = 100_000  # columns added per pricing round at most (the most negative ones)
 LP_REL_GAP = 1e-7  # column generation stops when the Lagrangian bound is this close to the LP value
 MAX_LP_ROUNDS = 200
-MAX_SURVIVOR_FRACTION = 0.25  # a larger fixing set means a poor incumbent: widen the incumbent MIP first
-MAX_INCUMBENT_ROUNDS = 4
+FIRST_STEP = 2e-4  # first MIP: columns with reduced cost <= this times |L(y)|
+GROWTH = 4.0  # each further MIP: the threshold grows by at most this factor (or to U - L(y))
+MAX_STEPS = 10
 
 
 @dataclass(frozen=True, eq=False)
@@ -359,39 +358,45 @@ def _no_result(kind: str, message: str, lazy: LazyModel, start: float, bound: fl
     )
 
 
-def find_incumbent(lazy, lp, options, start, pool, layers, built):
-    """Step 3 of the module docstring: (incumbent or None, its fixing pass or None, last MIP result).
+def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResult:
+    """Steps 3-4 of the module docstring: MIPs over ``{r_j <= t}`` for a growing threshold t.
 
-    The column sets of the MIPs are appended to ``built``.
+    Each MIP runs at the target gap over the columns of reduced cost at most t, the LP support,
+    the stay seed and the incumbent's columns, started from the incumbent. Every column
+    outside has ``r_j > t``, so any solution using one costs more than ``L + t``: once the
+    incumbent U satisfies ``U <= L + t`` the MIP's proof covers the full model. Otherwise
+    ``t`` grows to ``min(GROWTH t, U - L)``, which strictly exceeds the last t: a MIP that does
+    not certify has ``L + min_{j not in C} r_j < B_C <= U`` with every such ``r_j > t``.
+    The column sets are appended to ``built``.
     """
     incumbent = _lp_incumbent(lazy, lp)
     base = np.union1d(lp.support(), stay_seed(lazy))
-    threshold, result, fixing = SEED_GAP * abs(lp.bound), None, None
-    for attempt in range(1, MAX_INCUMBENT_ROUNDS + 1):
-        if incumbent is not None:
-            fixing = price(lazy, lp.y, objective_of(lazy, incumbent) - lp.bound)
-            logger.info(
-                "colgen: incumbent %.8g keeps %d columns", objective_of(lazy, incumbent), fixing.columns.size
-            )
-            if fixing.columns.size <= MAX_SURVIVOR_FRACTION * lazy.n_vars:
-                break
-            threshold *= 2.0  # a poor incumbent: grow the incumbent MIP's columns by one step
-        if attempt == MAX_INCUMBENT_ROUNDS:
-            break
-        seed = price(lazy, lp.y, threshold, at_least=int(SEED_FRACTION * lazy.n_vars))
-        columns = np.union1d(seed.columns, base)
-        built.append(columns)
+    threshold, best = FIRST_STEP * abs(lp.bound), None
+    for step in range(1, MAX_STEPS + 1):
+        selection = price(lazy, lp.y, threshold)
+        columns = np.union1d(selection.columns, base)
         if incumbent is not None:
             columns = np.union1d(columns, np.flatnonzero(incumbent > 0.5))
-        gap = max(SEED_MIP_GAP, options.mip_rel_gap)
-        mip_options = replace(remaining(options, start), mip_rel_gap=gap)
-        result = _restricted_mip(lazy, columns, mip_options, incumbent, pool, layers)
+        built.append(columns)
+        result = _restricted_mip(lazy, columns, remaining(options, start), incumbent, pool, layers)
         if result.x is None:
-            break  # time limit: keep what there is
+            break  # time limit before a solution of this step: keep the last one
         incumbent = result.x
-    if incumbent is not None and fixing is None:
-        fixing = price(lazy, lp.y, objective_of(lazy, incumbent) - lp.bound)
-    return incumbent, fixing, result
+        outside = lp.bound + max(selection.min_outside, 0.0)
+        certified = result.status == "optimal" and outside >= result.bound
+        bound = max(lp.bound, min(result.bound, outside))  # both are valid lower bounds
+        best = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
+        logger.info(
+            "colgen step %d: threshold %.3g, objective %.8g, bound for the full model %.8g",
+            step, threshold, result.objective, bound,
+        )  # fmt: skip
+        if certified or result.status != "optimal":
+            return best if certified else replace(best, status="feasible")
+        grown = GROWTH * threshold if threshold > 0 else math.inf
+        threshold = min(grown, result.objective - lp.bound)  # > threshold: see the docstring
+    if best is None:
+        return replace(result, bound=lp.bound, gap=math.nan)
+    return replace(best, status="feasible", message=f"not certified within {MAX_STEPS} steps")
 
 
 def _count_distinct(column_sets: list[np.ndarray]) -> int:
@@ -423,25 +428,10 @@ def solve_column_generation(
     )  # fmt: skip
     pool, layers = CutPool(), np.flatnonzero(curve.is_intersection_layer)
     built = [lp.columns]
-    incumbent, fixing, result = find_incumbent(lazy, lp, options, start, pool, layers, built)
-    if incumbent is None:  # stopped before any solution: only the LP bound is proven
-        return replace(
-            result, bound=lp.bound, gap=math.nan, wall_time=time.perf_counter() - start,
-            n_vars=lazy.n_vars, columns_built=_count_distinct(built),
-        )  # fmt: skip
-    columns = np.union1d(np.union1d(fixing.columns, lp.support()), np.flatnonzero(incumbent > 0.5))
-    built.append(columns)
-    final = _restricted_mip(lazy, columns, remaining(options, start), incumbent, pool, layers)
-    if final.x is None:  # stopped before HiGHS took the incumbent: report the incumbent itself
-        value = objective_of(lazy, incumbent)
-        final = replace(final, status="feasible", x=incumbent, objective=value, bound=lp.bound)
-    outside = lp.bound + max(fixing.min_outside, 0.0)
-    bound = max(lp.bound, min(final.bound, outside))  # both are valid lower bounds
-    status, message = final.status, final.message
-    if final.status == "optimal" and outside < final.bound:
-        status, message = "feasible", "the fixing step did not cover every cheaper column"
-    logger.info("colgen: objective %.8g, bound for the full model %.8g", final.objective, bound)
+    result = certify_by_steps(lazy, lp, options, start, pool, layers, built)
     return replace(
-        final, status=status, message=message, bound=bound, gap=relative_gap(final.objective, bound),
-        wall_time=time.perf_counter() - start, n_vars=lazy.n_vars, columns_built=_count_distinct(built),
-    )  # fmt: skip
+        result,
+        wall_time=time.perf_counter() - start,
+        n_vars=lazy.n_vars,
+        columns_built=_count_distinct(built),
+    )
