@@ -22,9 +22,9 @@ from spidermatch.correspondence import (
     check_solution,
     extract_path,
 )
-from spidermatch.costs import RobustLoss, feature_cost_matrix, product_edge_costs
+from spidermatch.costs import RobustLoss, feature_cost_matrix
 from spidermatch.curve import SpiderCurve, spider_curve
-from spidermatch.ilp import FAMILIES, IlpModel, build_model
+from spidermatch.ilp import FAMILIES, IlpModel
 from spidermatch.lazy_model import LazyModel
 from spidermatch.mesh import Mesh
 from spidermatch.product_graph import ProductGraph, build_product_graph
@@ -194,17 +194,16 @@ def prepare(
             low_resolution_features(target_features, low_y.to_full),
             settings.loss,
         )
+        lazy = LazyModel(
+            graph, curve, low_x.mesh.verts, low_y.mesh.verts, vertex_costs, tuple(settings.constraints)
+        )
         if settings.strategy in LAZY_STRATEGIES:  # the full model is never built
-            lazy = LazyModel(
-                graph, curve, low_x.mesh.verts, low_y.mesh.verts, vertex_costs, tuple(settings.constraints)
-            )
             logger.info(
                 "problem: curve length %d, %d columns, %d rows", curve.length, lazy.n_vars, lazy.n_rows
             )
             return low_x, low_y, curve, graph, lazy
-        costs = product_edge_costs(graph, curve.vertices, low_x.mesh.verts, low_y.mesh.verts, vertex_costs)
-    with _stage(timings, "build"):
-        model = build_model(graph, curve, costs, tuple(settings.constraints))
+    with _stage(timings, "build"):  # costs and matrix block by block (equal to build_model's)
+        model = lazy.full_model()
     logger.info(
         "problem: %d source / %d target vertices, curve length %d, %d variables, %d rows, %d non-zeros",
         low_x.mesh.n_verts,
