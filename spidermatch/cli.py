@@ -87,6 +87,7 @@ def settings_from_config(cfg, resolution: int) -> MatchSettings:
         curve_augmented=bool(cfg.curve.augmented),
         target_augmented=bool(cfg.costs.target_augmented),
         curve_seed=int(cfg.curve.seed),
+        curve_matching=str(cfg.curve.matching),
         loss=RobustLoss(float(cfg.costs.alpha), float(cfg.costs.scale), float(cfg.costs.bowl_exponent)),
         constraints=tuple(cfg.costs.constraints),
         solver=SolverOptions(

@@ -23,15 +23,16 @@ from spidermatch.correspondence import (
     entries_without_flow,
     extract_path,
 )
-from spidermatch.costs import RobustLoss, feature_cost_matrix, product_edge_costs
+from spidermatch.costs import RobustLoss, feature_cost_matrix
 from spidermatch.curve import SpiderCurve, spider_curve
 from spidermatch.dense import DenseMap, DenseSettings, densify
-from spidermatch.ilp import FAMILIES, IlpModel, build_model
+from spidermatch.ilp import FAMILIES, IlpModel
+from spidermatch.lazy_model import LazyModel
 from spidermatch.mesh import Mesh
 from spidermatch.product_graph import ProductGraph, build_product_graph
 from spidermatch.remesh import Decimated, decimate
 from spidermatch.solve.highs import SolveResult, SolverOptions
-from spidermatch.solve.strategies import solve_with_strategy
+from spidermatch.solve.strategies import LAZY_STRATEGIES, solve_with_strategy
 
 logger = logging.getLogger(__name__)
 
@@ -73,6 +74,8 @@ class MatchSettings:
     curve_augmented, target_augmented : bool
         Use augmented edges for the SpiderCurve's graph / the target's product edges.
     curve_seed : int
+    curve_matching : str
+        Odd-vertex matching of the SpiderCurve's Christofides tour: "greedy" or "blossom".
     loss : RobustLoss
     constraints : tuple of str
         Constraint families to impose (all four by default).
@@ -90,6 +93,7 @@ class MatchSettings:
     curve_augmented: bool = False
     target_augmented: bool = False
     curve_seed: int = 0
+    curve_matching: str = "greedy"
     loss: RobustLoss = field(default_factory=RobustLoss)
     constraints: tuple = FAMILIES
     solver: SolverOptions = field(default_factory=SolverOptions)
@@ -186,15 +190,21 @@ def prepare(
     target_features: np.ndarray,
     settings: MatchSettings,
     timings: dict,
-) -> tuple[Decimated, Decimated, SpiderCurve, ProductGraph, IlpModel]:
-    """Decimate, trace the curve, build the product graph, the costs and the ILP."""
+) -> tuple[Decimated, Decimated, SpiderCurve, ProductGraph, IlpModel | LazyModel]:
+    """Decimate, trace the curve, build the product graph, the costs and the ILP.
+
+    For a strategy in ``LAZY_STRATEGIES`` the ILP is a :class:`LazyModel` (feature costs only;
+    columns are built by the strategy); otherwise the full :class:`IlpModel`.
+    """
     _check_features(source, source_features, "source")
     _check_features(target, target_features, "target")
     with _stage(timings, "decimate"):
         low_x = decimate(source.centred(), settings.resolution, settings.decimation)
         low_y = decimate(target.centred(), settings.resolution, settings.decimation)
     with _stage(timings, "curve"):
-        curve = spider_curve(low_x.mesh, settings.curve_augmented, settings.curve_seed)
+        curve = spider_curve(
+            low_x.mesh, settings.curve_augmented, settings.curve_seed, settings.curve_matching
+        )
     with _stage(timings, "costs"):
         edges_y = low_y.mesh.augmented_edges if settings.target_augmented else low_y.mesh.edges
         graph = build_product_graph(curve.length, low_y.mesh.n_verts, edges_y)
@@ -203,9 +213,16 @@ def prepare(
             low_resolution_features(target_features, low_y.to_full),
             settings.loss,
         )
-        costs = product_edge_costs(graph, curve.vertices, low_x.mesh.verts, low_y.mesh.verts, vertex_costs)
-    with _stage(timings, "build"):
-        model = build_model(graph, curve, costs, tuple(settings.constraints))
+        lazy = LazyModel(
+            graph, curve, low_x.mesh.verts, low_y.mesh.verts, vertex_costs, tuple(settings.constraints)
+        )
+        if settings.strategy in LAZY_STRATEGIES:  # the full model is never built
+            logger.info(
+                "problem: curve length %d, %d columns, %d rows", curve.length, lazy.n_vars, lazy.n_rows
+            )
+            return low_x, low_y, curve, graph, lazy
+    with _stage(timings, "build"):  # costs and matrix block by block (equal to build_model's)
+        model = lazy.full_model()
     logger.info(
         "problem: %d source / %d target vertices, curve length %d; "
         "full model: %d variables, %d rows, %d non-zeros",

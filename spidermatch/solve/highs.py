@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 
 import highspy
 import numpy as np
+import scipy.sparse as sp
 
 from spidermatch import guard
 from spidermatch.ilp import IlpModel
@@ -95,6 +96,7 @@ class SolveResult:
     nnz: int
     message: str = ""
     cut_rounds: int = 0
+    columns_built: int | None = None  # columns a strategy that never builds the full model did build
 
     @property
     def proven_optimal(self) -> bool:
@@ -114,6 +116,7 @@ class SolveResult:
             "rows": self.n_rows,
             "nonzeros": self.nnz,
             "message": self.message,
+            "columns_built": self.columns_built,
         }
 
 
@@ -305,6 +308,29 @@ class HighsSession:
             "gap": _finite_or_none(relative_gap(incumbent, bound)),
             "solver_message": "HiGHS had not stopped yet; figures from its last progress report",
         }
+
+    def add_columns(self, costs: np.ndarray, columns) -> None:
+        """Append variables in [0, 1] with ``costs`` (k,) and constraint columns (scipy sparse, (m, k)).
+
+        Only for LP sessions (``relax=True``): the new columns are continuous. HiGHS keeps
+        the current basis, so the next run starts from the last solution.
+        """
+        if not self.relax:
+            raise ValueError("columns can be added to LP sessions only")
+        columns = sp.csc_matrix(columns)
+        k = columns.shape[1]
+        self.highs.addCols(
+            k,
+            np.asarray(costs, dtype=np.float64),
+            np.zeros(k),
+            np.ones(k),
+            int(columns.nnz),
+            columns.indptr.astype(np.int32),
+            columns.indices.astype(np.int32),
+            columns.data.astype(np.float64),
+        )
+        self.n_vars += k
+        self.nnz += int(columns.nnz)
 
     def row_duals(self) -> np.ndarray:
         """Row duals (m,) of the last LP solve (HiGHS's sign convention: ``r = c - A^T y``)."""

@@ -108,13 +108,14 @@ def solve_with_cuts(
     columns: np.ndarray | None = None,
     incumbent: np.ndarray | None = None,
     pool: CutPool | None = None,
+    restricted: IlpModel | None = None,
 ) -> SolveResult:
     """Branch and cut on (a column subset of) the model, with lazy connectivity cuts.
 
     Parameters
     ----------
-    model : IlpModel
-        The full model.
+    model : IlpModel or None
+        The full model (None when ``restricted`` is given: the full one is never built).
     graph : ProductGraph
     options : SolverOptions
         Its ``time_limit`` bounds all HiGHS runs of this call together.
@@ -124,6 +125,8 @@ def solve_with_cuts(
         A feasible full-model 0/1 vector that uses only ``columns``, offered as a start.
     pool : CutPool, optional
         Cuts known from earlier solves (used and extended).
+    restricted : IlpModel, optional
+        The model over ``columns`` (every row of the full model), when it was built directly.
 
     Returns
     -------
@@ -133,7 +136,11 @@ def solve_with_cuts(
     """
     start = time.perf_counter()
     pool = pool if pool is not None else CutPool()
-    sub = model if columns is None else restrict_columns(model, columns)
+    n_vars = graph.n_edges
+    if restricted is not None:
+        sub = restricted
+    else:
+        sub = model if columns is None else restrict_columns(model, columns)
     session = HighsSession(sub, options)
 
     def add_cuts(rows, lower, upper):
@@ -146,9 +153,9 @@ def solve_with_cuts(
     result = session.run()
     rounds = 0
     # connectivity cuts are valid for closed paths, which only flow conservation (CON) makes
-    max_rounds = MAX_CUT_ROUNDS if imposes_paths(model) else 0
+    max_rounds = MAX_CUT_ROUNDS if imposes_paths(sub) else 0
     for round_number in range(1, max_rounds + 1):
-        x = expand(result.x, columns, model.n_vars)
+        x = expand(result.x, columns, n_vars)
         if x is None:
             break
         components = detached_components(graph, x)
@@ -175,14 +182,13 @@ def solve_with_cuts(
         pool.add(rows, lower, upper)
         add_cuts(rows, lower, upper)
         rounds = round_number
-        connected = cheapest_connected(graph, session, columns, model.n_vars)
+        connected = cheapest_connected(graph, session, columns, n_vars)
         if connected is not None:
-            logger.info(
-                "restarting from the best connected solution found so far, %.6g", model.costs @ connected
-            )
-            session.set_solution(connected if columns is None else connected[columns])
+            restart = connected if columns is None else connected[columns]
+            logger.info("restarting from the best connected solution found so far, %.6g", sub.costs @ restart)
+            session.set_solution(restart)
         result = session.run()  # the session gives each run only the time left
-    x = expand(result.x, columns, model.n_vars)
+    x = expand(result.x, columns, n_vars)
     return replace(result, x=x, wall_time=time.perf_counter() - start, cut_rounds=rounds)
 
 
@@ -344,12 +350,22 @@ def solve_reduced_cost_fixing(
 
 
 STRATEGIES: dict[str, Strategy] = {"plain": solve_plain, "rcfix": solve_reduced_cost_fixing}
+LAZY_STRATEGIES = ("colgen",)  # strategies that take a LazyModel (spidermatch.solve.colgen)
 
 
 def solve_with_strategy(
-    name: str, model: IlpModel, graph: ProductGraph, curve: SpiderCurve, options: SolverOptions
+    name: str, model, graph: ProductGraph, curve: SpiderCurve, options: SolverOptions
 ) -> SolveResult:
-    """Run the strategy called ``name``."""
+    """Run the strategy called ``name`` on ``model`` (an IlpModel, or a LazyModel for any strategy)."""
+    from spidermatch.lazy_model import LazyModel
+
+    if name in LAZY_STRATEGIES:
+        from spidermatch.solve.colgen import solve_column_generation
+
+        return solve_column_generation(model, graph, curve, options)
     if name not in STRATEGIES:
-        raise ValueError(f"unknown solving strategy {name!r}; choose from {sorted(STRATEGIES)}")
+        choices = sorted([*STRATEGIES, *LAZY_STRATEGIES])
+        raise ValueError(f"unknown solving strategy {name!r}; choose from {choices}")
+    if isinstance(model, LazyModel):
+        model = model.full_model()
     return STRATEGIES[name](model, graph, curve, options)

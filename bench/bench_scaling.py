@@ -1,0 +1,157 @@
+"""How solving strategies scale with the resolution: one subprocess per instance (clean peak memory).
+
+For every (pair, faces, strategy): the time of every stage (features, decimation, curve,
+costs, build, solve, check), the columns built against the full model's, rows, status,
+objective, bound, gap, mean geodesic error, the curve length and the peak memory.
+Strategies that need the full model (rcfix, plain) are skipped where it would have more
+than ``--full-model-columns`` columns (about 3.7 f^2 columns at f faces).
+
+Example (the five FAUST_r validation pairs, learned features):
+
+    flock /work/heavy.lock nice -n 5 .venv/bin/python bench/bench_scaling.py \
+        --data ../shared/data/FAUST_r --features learned --checkpoint runs/faust_sup_s0/best.pt \
+        --faces 1000 2000 --strategies colgen rcfix --time-limit 600
+
+Prints one row per instance and writes all rows to
+bench/results/solver_scaling_faust_val.{json,csv} (``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import multiprocessing as mp
+import resource
+import sys
+import time
+from pathlib import Path
+
+from feature_options import add_feature_options, load_pair_with_features, parse_checked
+
+VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
+STAGES = ("features", "decimate", "curve", "costs", "build", "solve", "check")
+COLUMNS = (
+    "pair", "faces", "strategy", "status", "columns_built", "columns_full", "rows", "curve_length",
+    "build_s", "solve_s", "gap", "objective", "geo_err", "peak_mib",
+)  # fmt: skip
+FULL_MODEL_COLUMNS_PER_FACE2 = 3.74  # |E_P| ~ 0.575 f * 6.5 f on FAUST_r meshes decimated to f faces
+
+
+def run_instance(task: tuple) -> dict:
+    """Match one pair at one resolution with one strategy; the row of figures."""
+    data, pair, faces, strategy, features, checkpoint, time_limit, matching = task
+    from spidermatch.evaluate import sparse_map_errors
+    from spidermatch.pipeline import MatchSettings, match
+    from spidermatch.solve.highs import SolverOptions
+
+    start = time.perf_counter()
+    x, y, feat_x, feat_y = load_pair_with_features(data, pair, features, checkpoint)
+    features_s = time.perf_counter() - start
+    settings = MatchSettings(
+        resolution=faces,
+        strategy=strategy,
+        curve_matching=matching,
+        solver=SolverOptions(time_limit=time_limit),
+    )
+    result = match(x.mesh, y.mesh, feat_x, feat_y, settings)
+    solved = result.solve
+    row = {
+        "pair": f"{pair[0]}:{pair[1]}",
+        "faces": faces,
+        "strategy": strategy,
+        "curve_matching": matching,
+        "status": solved.status,
+        "columns_built": solved.columns_built if solved.columns_built is not None else result.graph.n_edges,
+        "columns_full": result.graph.n_edges,
+        "rows": solved.n_rows,
+        "curve_length": result.curve.length,
+        "build_s": round(sum(result.timings.get(k, 0.0) for k in ("costs", "build")), 2),
+        "solve_s": round(solved.wall_time, 2),
+        "gap": solved.gap,
+        "objective": solved.objective,
+        "bound": solved.bound,
+        "check": None if result.check is None else bool(result.check.ok),
+        "geo_err": None,
+        "message": solved.message,
+    }
+    row.update({f"{stage}_s": round(result.timings.get(stage, 0.0), 2) for stage in STAGES[1:]})
+    row["features_s"] = round(features_s, 2)
+    if result.low_map is not None and x.corr is not None and y.corr is not None:
+        pairs = result.full_pairs
+        errors = sparse_map_errors(pairs[:, 0], pairs[:, 1], x.mesh, x.corr, y.corr, y.mesh)
+        row["geo_err"] = round(errors.mean, 4)
+    row["peak_mib"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+    return row
+
+
+def skipped_row(pair: tuple, faces: int, strategy: str, limit: float) -> dict:
+    """The row of an instance not run because its full model would be too large."""
+    estimate = FULL_MODEL_COLUMNS_PER_FACE2 * faces**2
+    return {
+        "pair": f"{pair[0]}:{pair[1]}",
+        "faces": faces,
+        "strategy": strategy,
+        "status": "skipped",
+        "columns_full": int(estimate),
+        "message": f"full model of ~{estimate / 1e6:.0f} M columns exceeds --full-model-columns {limit:.3g}",
+    }
+
+
+def write_rows(out: Path, rows: list[dict]) -> None:
+    """All rows as JSON (with the command line) and CSV (columns: every key any row has)."""
+    out.write_text(json.dumps({"argv": sys.argv, "rows": rows}, indent=2) + "\n")
+    keys = list(dict.fromkeys(key for row in rows for key in row))
+    with out.with_suffix(".csv").open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=keys)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def format_row(row: dict) -> str:
+    """One printed table row."""
+    return " | ".join(
+        f"{row.get(k):.6g}" if isinstance(row.get(k), float) else str(row.get(k)) for k in COLUMNS
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Run every (pair, faces, strategy) in its own process and write the table."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--data", default="synthetic", help="FAUST_r-style folder, or 'synthetic'")
+    parser.add_argument("--pairs", nargs="+", default=VALIDATION_PAIRS, help="SOURCE:TARGET shape names")
+    parser.add_argument("--faces", nargs="+", type=int, default=[500, 1000, 2000, 4000])
+    parser.add_argument("--strategies", nargs="+", default=["colgen", "rcfix"])
+    parser.add_argument("--curve-matching", default="greedy", choices=("greedy", "blossom"))
+    parser.add_argument("--time-limit", type=float, default=600.0, help="seconds per solve")
+    parser.add_argument("--full-model-columns", type=float, default=2.0e7)
+    parser.add_argument("--out", default="bench/results/solver_scaling_faust_val.json")
+    add_feature_options(parser)
+    args = parse_checked(parser, argv)
+    out, rows = Path(args.out), []
+    out.parent.mkdir(parents=True, exist_ok=True)
+    print(" | ".join(COLUMNS), flush=True)
+    context = mp.get_context("spawn")
+    for faces in args.faces:
+        for pair_text in args.pairs:
+            pair = tuple(pair_text.split(":"))
+            for strategy in args.strategies:
+                full = FULL_MODEL_COLUMNS_PER_FACE2 * faces**2
+                if strategy != "colgen" and full > args.full_model_columns:
+                    row = skipped_row(pair, faces, strategy, args.full_model_columns)
+                else:
+                    task = (args.data, pair, faces, strategy, args.features, args.checkpoint)
+                    start = time.perf_counter()
+                    with context.Pool(1) as pool:
+                        row = pool.apply(run_instance, (task + (args.time_limit, args.curve_matching),))
+                    row["process_s"] = round(time.perf_counter() - start, 1)
+                rows.append(row)
+                print(format_row(row), flush=True)
+                write_rows(out, rows)  # after every instance: an interrupted run keeps what it measured
+    print(f"wrote {out} and {out.with_suffix('.csv')}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,437 @@
+"""``colgen``: certify the SpiderMatch ILP without ever building its full model.
+
+Design
+------
+The full model has one column per product edge (3.7 M at 1000 faces, ~15 M at 2000),
+but an optimal path uses about one per curve position, and the LP relaxation needs
+few more. ``colgen`` works on a :class:`~spidermatch.lazy_model.LazyModel`, which
+holds only what defines the columns and produces any of them on demand:
+
+1. **Seed.** Per curve position the edges among the ``SEED_NEIGHBOURS`` targets of
+   lowest feature cost and their 1-ring, plus the *stay seed*: the stay edges at one
+   target vertex y0 in every layer. Alone, the stay seed is a solution of every
+   constraint family (one boundary crossing per layer, a closed flow, equal out-flows
+   in every layer, no counted edge for ANS) and of every connectivity cut (it has no
+   intra edges), so every restricted LP and MIP below is feasible.
+2. **Column generation for the LP.** Solve the restricted LP (the columns built so
+   far, the rows they touch); price *every* column of the full model with the LP's row duals,
+   one block of layers at a time (:meth:`LazyModel.block_reduced_costs`); add the
+   most negative ones; repeat until no column outside has a negative reduced cost or
+   the Lagrangian bound below meets the restricted LP's value.
+3. **Growing MIPs.** With the final duals y and bound L = L(y), a MIP at the target gap
+   over the columns of reduced cost at most a threshold t (plus the LP support, the
+   stay seed and the incumbent's columns), started from the incumbent U. If U <= L + t,
+   every column that a solution of cost <= U could use is in the MIP (reduced-cost
+   fixing against U) and its proof covers the full model. Otherwise t grows to
+   min(4 t, U - L) and the next MIP starts from U: step by step, never all at once.
+
+The bound
+---------
+The restricted LP holds the rows its columns touch; a row no built column touches is
+``0 = 0`` or ``0 <= 1`` there, and 0 is an optimal dual for it. So its duals, extended
+by zeros, are multipliers ``y`` for every row of the full model. They are sign-corrected
+as in :mod:`spidermatch.solve.fixing` and then, for **any** such ``y``,
+``L(y) = sum_i y_i b_i(y) + sum_j min(0, r_j)`` with ``r = c - A^T y`` summed over
+*all* columns j of the full model (built or not: the pricing pass generates each
+column's cost and coefficients exactly as ``build_model`` would) is a lower bound on
+every feasible x in [0, 1]^n; no property of the restricted LP or of HiGHS's
+tolerances is used. A solution that uses column j costs at least ``L(y) + max(r_j, 0)``.
+A MIP runs over a set C (every MIP holds every row of the full model) that contains
+every column with ``r_j <= t``; its bound B_C holds for every solution using columns of
+C only (rows and connectivity cuts are valid for the full model), and every other
+solution costs at least ``O = L(y) + min_{j not in C} max(r_j, 0) > L(y) + t``. So
+``min(B_C, O)`` is a lower bound for the full model (and so is L(y) alone; the larger
+of the two is reported), with HiGHS's bound entering through
+:func:`certified_mip_bound` as for ``rcfix``. The incumbent is certified when ``O`` is
+at least B_C, which holds as soon as ``U <= L(y) + t``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.sparse as sp
+
+from spidermatch.curve import SpiderCurve
+from spidermatch.ilp import IlpModel
+from spidermatch.lazy_model import LazyModel
+from spidermatch.product_graph import INTRA, ProductGraph
+from spidermatch.solve.connectivity import detached_components
+from spidermatch.solve.fixing import sign_corrected_duals
+from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
+from spidermatch.solve.strategies import (
+    LP_EXTRA,
+    CutPool,
+    count_fractional,
+    remaining,
+    solve_with_cuts,
+)
+
+logger = logging.getLogger(__name__)
+
+SEED_NEIGHBOURS = 6  # per source vertex: targets of lowest feature cost whose edges (and 1-ring) seed the LP
+BLOCK_COLUMNS = 1_000_000  # edges priced at once (~80 bytes each in flight)
+MAX_ADD = 100_000  # columns added per pricing round at most (the most negative ones)
+LP_REL_GAP = 1e-7  # column generation stops when the Lagrangian bound is this close to the LP value
+MAX_LP_ROUNDS = 200
+FIRST_STEP = 2e-4  # first MIP: columns with reduced cost <= this times |L(y)|
+GROWTH = 4.0  # each further MIP: the threshold grows by at most this factor (or to U - L(y))
+MAX_STEPS = 10
+
+
+@dataclass(frozen=True, eq=False)
+class Pricing:
+    """One pricing pass over every column of the full model for fixed row multipliers.
+
+    Attributes
+    ----------
+    bound : float
+        ``L(y)``, a lower bound for the full model.
+    columns : np.ndarray, shape (k,)
+        Sorted edge ids with reduced cost at most ``cutoff`` (and not excluded).
+    reduced : np.ndarray, shape (k,)
+        Their reduced costs.
+    cutoff : float
+    min_outside : float
+        Smallest reduced cost of the columns not selected (and not excluded); inf if none.
+
+    """
+
+    bound: float
+    columns: np.ndarray
+    reduced: np.ndarray
+    cutoff: float
+    min_outside: float
+
+
+def price(
+    lazy: LazyModel,
+    y: np.ndarray,
+    threshold: float,
+    at_least: int = 0,
+    exclude: np.ndarray | None = None,
+) -> Pricing:
+    """Reduced costs of every column, block by block; keep those at most ``threshold``.
+
+    Parameters
+    ----------
+    lazy : LazyModel
+    y : np.ndarray, shape (n_rows,)
+        Sign-corrected row multipliers.
+    threshold : float
+    at_least : int
+        Raise the cutoff so that at least this many columns are selected (ties included).
+    exclude : np.ndarray, shape (n_vars,), bool, optional
+        Columns never selected nor counted in ``min_outside`` (they still count in the bound).
+
+    """
+    potentials = lazy.potentials(y)
+    block = lazy.graph.block_size
+    negative_sums, kept_ids, kept_reduced, min_outside = [], [], [], math.inf
+    for start, stop in lazy.layer_blocks(max(1, BLOCK_COLUMNS // block)):
+        reduced = lazy.block_reduced_costs(start, stop, potentials)
+        negative_sums.append(float(np.minimum(reduced, 0.0).sum()))
+        if exclude is not None:
+            reduced[exclude[start * block : stop * block]] = np.inf
+        cut = threshold
+        if at_least:
+            cut = max(
+                cut, np.partition(reduced, min(at_least, reduced.size) - 1)[min(at_least, reduced.size) - 1]
+            )
+        keep = reduced <= cut
+        kept_ids.append(np.flatnonzero(keep) + start * block)
+        kept_reduced.append(reduced[keep])
+        if not keep.all():
+            min_outside = min(min_outside, float(reduced[~keep].min()))
+    ids, reduced = np.concatenate(kept_ids), np.concatenate(kept_reduced)
+    cutoff = threshold
+    if at_least and ids.size > at_least:
+        cutoff = max(threshold, float(np.partition(reduced, at_least - 1)[at_least - 1]))
+    elif at_least:
+        cutoff = max(threshold, float(reduced.max(initial=-math.inf)))
+    selected = reduced <= cutoff
+    if not selected.all():
+        min_outside = min(min_outside, float(reduced[~selected].min()))
+    bound = lazy.row_term(y) + math.fsum(negative_sums)
+    return Pricing(bound, ids[selected], reduced[selected], cutoff, min_outside)
+
+
+def stay_seed(lazy: LazyModel) -> np.ndarray:
+    """Stay edges at the target vertex y0 of cheapest all-stay path, one per layer, shape (L,).
+
+    Together they satisfy CYC, CON, PES, ANS and every connectivity cut.
+    """
+    graph, c = lazy.graph, lazy.curve.vertices
+    step = np.linalg.norm(lazy.source_verts[c] - lazy.source_verts[np.roll(c, -1)], axis=1)
+    totals = step @ (lazy.vertex_costs[c] + lazy.vertex_costs[np.roll(c, -1)])  # (V_Y,)
+    y0 = int(np.argmin(totals))
+    stay_entry = int(
+        np.flatnonzero((graph.block_kind != INTRA) & (graph.block_src == y0) & (graph.block_dst == y0))[0]
+    )
+    return np.arange(graph.n_layers, dtype=np.int64) * graph.block_size + stay_entry
+
+
+def feature_seed(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarray:
+    """Edges between plausible targets of consecutive curve vertices, sorted edge ids (k,).
+
+    A target is plausible for source vertex p if it is among p's ``neighbours`` of lowest
+    feature cost R[p] or adjacent to one of them.
+    """
+    graph, costs = lazy.graph, lazy.vertex_costs
+    k = min(neighbours, graph.n_target)
+    nearest = np.argpartition(costs, k - 1, axis=1)[:, :k]
+    plausible = np.zeros(costs.shape, dtype=bool)
+    plausible[np.arange(costs.shape[0])[:, None], nearest] = True
+    edges = graph.target_edges
+    adjacency = sp.csr_matrix(
+        (np.ones(edges.shape[0]), (edges[:, 0], edges[:, 1])), shape=(graph.n_target,) * 2
+    )
+    plausible |= (sp.csr_matrix(plausible, dtype=np.float64) @ adjacency).toarray() > 0
+    chosen = []
+    block = graph.block_size
+    for start, stop in lazy.layer_blocks(max(1, BLOCK_COLUMNS // block)):
+        layer, entry, next_layer = lazy.split(np.arange(start * block, stop * block))
+        p, q = lazy.curve.vertices[layer], lazy.curve.vertices[next_layer]
+        keep = plausible[p, graph.block_src[entry]] & plausible[q, graph.block_dst[entry]]
+        chosen.append(np.flatnonzero(keep) + start * block)
+    return np.concatenate(chosen)
+
+
+@dataclass(frozen=True, eq=False)
+class ColgenLp:
+    """The LP relaxation solved by column generation.
+
+    Attributes
+    ----------
+    y : np.ndarray, shape (n_rows,)
+        Sign-corrected row multipliers of the last restricted LP.
+    bound : float
+        ``L(y)`` over every column of the full model.
+    value : float
+        The last restricted LP's optimum (an upper bound on the full LP's).
+    columns : np.ndarray, shape (k,)
+        Sorted edge ids built.
+    x : np.ndarray, shape (k,)
+        The restricted LP's solution on ``columns``.
+    rounds : int
+
+    """
+
+    y: np.ndarray
+    bound: float
+    value: float
+    columns: np.ndarray
+    x: np.ndarray
+    rounds: int
+
+    def support(self, tolerance: float = 1e-9) -> np.ndarray:
+        """Edge ids the LP solution uses, sorted."""
+        return self.columns[self.x > tolerance]
+
+
+class LpNotSolved(Exception):
+    """A restricted LP stopped (time limit) or failed; carries HiGHS's result."""
+
+    def __init__(self, result: SolveResult) -> None:
+        super().__init__(result.message)
+        self.result = result
+
+
+def _bounds_only(lazy: LazyModel) -> IlpModel:
+    lower, upper = lazy.row_bounds
+    return IlpModel(np.zeros(0), sp.csc_matrix((lazy.n_rows, 0)), lower, upper, {})
+
+
+class RestrictedLp:
+    """The LP over the columns built so far and only the rows they touch, in one HiGHS session.
+
+    A row that no built column touches is ``0 = 0`` or ``0 <= 1``; leaving it out changes
+    neither the LP's optimum nor its other duals, and 0 is an optimal dual for it. Rows are
+    added (empty) when a new column first touches them, before the column itself.
+    """
+
+    def __init__(self, lazy: LazyModel, seed: np.ndarray, options: SolverOptions) -> None:
+        self.lazy = lazy
+        self.rows = np.zeros(0, dtype=np.int64)  # full-model row of each session row
+        self.position = np.full(lazy.n_rows, -1, dtype=np.int64)  # session row of each full-model row
+        sub = lazy.submodel(seed)
+        self._touch(sub.matrix.indices)
+        lower, upper = lazy.row_bounds
+        model = IlpModel(sub.costs, self._remap(sub.matrix), lower[self.rows], upper[self.rows], {})
+        self.session = HighsSession(model, options, relax=True)
+
+    def _touch(self, row_indices: np.ndarray) -> np.ndarray:
+        touched = np.unique(row_indices)
+        fresh = touched[self.position[touched] < 0]
+        self.position[fresh] = np.arange(self.rows.size, self.rows.size + fresh.size)
+        self.rows = np.concatenate([self.rows, fresh])
+        return fresh
+
+    def _remap(self, matrix: sp.csc_matrix) -> sp.csc_matrix:
+        indices = self.position[matrix.indices].astype(np.int32)
+        remapped = sp.csc_matrix(
+            (matrix.data, indices, matrix.indptr), shape=(self.rows.size, matrix.shape[1])
+        )
+        remapped.sort_indices()
+        return remapped
+
+    def add(self, columns: np.ndarray) -> None:
+        """Append the columns (edge ids, k) and any row they touch first."""
+        sub = self.lazy.submodel(columns)
+        fresh = self._touch(sub.matrix.indices)
+        if fresh.size:
+            lower, upper = self.lazy.row_bounds
+            empty = sp.csr_matrix((fresh.size, self.session.n_vars))
+            self.session.add_rows(empty, lower[fresh], upper[fresh])
+        self.session.add_columns(sub.costs, self._remap(sub.matrix))
+
+    def row_duals(self) -> np.ndarray:
+        """Duals for every row of the full model (n_rows,), 0 on the rows left out."""
+        y = np.zeros(self.lazy.n_rows)
+        y[self.rows] = self.session.row_duals()
+        return y
+
+
+def generate_columns(lazy: LazyModel, seed: np.ndarray, options: SolverOptions) -> ColgenLp:
+    """Solve the LP relaxation of the full model by column generation from ``seed`` (sorted ids)."""
+    lp_options = replace(options, presolve="off", extra={**options.extra, **LP_EXTRA})
+    restricted = RestrictedLp(lazy, seed, lp_options)
+    order, built = [seed], np.zeros(lazy.n_vars, dtype=bool)
+    built[seed] = True
+    bounds = _bounds_only(lazy)
+    for round_number in range(1, MAX_LP_ROUNDS + 1):
+        result = restricted.session.run()
+        if result.status != "optimal":
+            raise LpNotSolved(result)
+        y = sign_corrected_duals(bounds, restricted.row_duals())
+        pricing = price(lazy, y, threshold=-1e-12 * max(abs(result.objective), 1.0), exclude=built)
+        new = pricing.columns
+        logger.info(
+            "colgen round %d: %d columns, %d rows, LP %.8g, bound %.8g, %d priced negative",
+            round_number, int(built.sum()), restricted.rows.size, result.objective, pricing.bound, new.size,
+        )  # fmt: skip
+        if new.size == 0 or relative_gap(result.objective, pricing.bound) <= LP_REL_GAP:
+            break
+        if new.size > MAX_ADD:
+            new = np.sort(new[np.argpartition(pricing.reduced, MAX_ADD - 1)[:MAX_ADD]])
+        restricted.add(new)
+        order.append(new)
+        built[new] = True
+    order = np.concatenate(order)
+    by_id = np.argsort(order)
+    return ColgenLp(y, pricing.bound, result.objective, order[by_id], result.x[by_id], round_number)
+
+
+def _lp_incumbent(lazy: LazyModel, lp: ColgenLp) -> np.ndarray | None:
+    """The LP solution as a full 0/1 vector if it is integral and one closed walk, else None."""
+    if count_fractional(lp.x) > 0:
+        return None
+    x = np.zeros(lazy.n_vars)
+    x[lp.columns] = np.rint(lp.x)
+    return None if detached_components(lazy.graph, x) else x
+
+
+def _restricted_mip(lazy, columns, options, incumbent, pool, layers) -> SolveResult:
+    pool.add_two_cycle_cuts(lazy.graph, layers, columns)
+    logger.info("colgen: MIP over %d of %d columns, gap %.2g", columns.size, lazy.n_vars, options.mip_rel_gap)
+    return solve_with_cuts(
+        None, lazy.graph, options, columns, incumbent, pool, restricted=lazy.submodel(columns)
+    )
+
+
+def _no_result(kind: str, message: str, lazy: LazyModel, start: float, bound: float = -math.inf):
+    return SolveResult(
+        kind,
+        None,
+        math.inf,
+        bound,
+        math.nan,
+        time.perf_counter() - start,
+        lazy.n_vars,
+        lazy.n_rows,
+        0,
+        message,
+    )
+
+
+def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResult:
+    """Steps 3-4 of the module docstring: MIPs over ``{r_j <= t}`` for a growing threshold t.
+
+    Each MIP runs at the target gap over the columns of reduced cost at most t, the LP support,
+    the stay seed and the incumbent's columns, started from the incumbent. Every column
+    outside has ``r_j > t``, so any solution using one costs more than ``L + t``: once the
+    incumbent U satisfies ``U <= L + t`` the MIP's proof covers the full model. Otherwise
+    ``t`` grows to ``min(GROWTH t, U - L)``, which strictly exceeds the last t: a MIP that does
+    not certify has ``L + min_{j not in C} r_j < B_C <= U`` with every such ``r_j > t``.
+    The column sets are appended to ``built``.
+    """
+    incumbent = _lp_incumbent(lazy, lp)
+    base = np.union1d(lp.support(), stay_seed(lazy))
+    threshold, best = FIRST_STEP * abs(lp.bound), None
+    for step in range(1, MAX_STEPS + 1):
+        selection = price(lazy, lp.y, threshold)
+        columns = np.union1d(selection.columns, base)
+        if incumbent is not None:
+            columns = np.union1d(columns, np.flatnonzero(incumbent > 0.5))
+        built.append(columns)
+        result = _restricted_mip(lazy, columns, remaining(options, start), incumbent, pool, layers)
+        if result.x is None:
+            break  # time limit before a solution of this step: keep the last one
+        incumbent = result.x
+        outside = lp.bound + max(selection.min_outside, 0.0)
+        certified = result.status == "optimal" and outside >= result.bound
+        bound = max(lp.bound, min(result.bound, outside))  # both are valid lower bounds
+        best = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
+        logger.info(
+            "colgen step %d: threshold %.3g, objective %.8g, bound for the full model %.8g",
+            step, threshold, result.objective, bound,
+        )  # fmt: skip
+        if certified or result.status != "optimal":
+            return best if certified else replace(best, status="feasible")
+        grown = GROWTH * threshold if threshold > 0 else math.inf
+        threshold = min(grown, result.objective - lp.bound)  # > threshold: see the docstring
+    if best is None:
+        return replace(result, bound=lp.bound, gap=math.nan)
+    return replace(best, status="feasible", message=f"not certified within {MAX_STEPS} steps")
+
+
+def _count_distinct(column_sets: list[np.ndarray]) -> int:
+    return int(np.unique(np.concatenate(column_sets)).size)
+
+
+def objective_of(lazy: LazyModel, x: np.ndarray) -> float:
+    """Objective of a full 0/1 vector x (n_vars,)."""
+    used = np.flatnonzero(x > 0.5)
+    return float(lazy.costs(used) @ x[used])
+
+
+def solve_column_generation(
+    lazy: LazyModel, graph: ProductGraph, curve: SpiderCurve, options: SolverOptions
+) -> SolveResult:
+    """Column generation, reduced-cost fixing and a final MIP, certified for the full model."""
+    if not isinstance(lazy, LazyModel):
+        raise TypeError("the colgen strategy needs a LazyModel (the full model is never built)")
+    start = time.perf_counter()
+    seed = np.union1d(feature_seed(lazy), stay_seed(lazy))
+    try:
+        lp = generate_columns(lazy, seed, options)
+    except LpNotSolved as stopped:
+        kind = "no_solution" if stopped.result.status in ("no_solution", "feasible") else "error"
+        return _no_result(kind, f"restricted LP not solved: {stopped.result.message}", lazy, start)
+    logger.info(
+        "colgen LP: %d of %d columns in %d rounds, bound %.8g (%.1f s)",
+        lp.columns.size, lazy.n_vars, lp.rounds, lp.bound, time.perf_counter() - start,
+    )  # fmt: skip
+    pool, layers = CutPool(), np.flatnonzero(curve.is_intersection_layer)
+    built = [lp.columns]
+    result = certify_by_steps(lazy, lp, options, start, pool, layers, built)
+    return replace(
+        result,
+        wall_time=time.perf_counter() - start,
+        n_vars=lazy.n_vars,
+        columns_built=_count_distinct(built),
+    )

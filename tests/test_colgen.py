@@ -1,0 +1,117 @@
+import numpy as np
+import pytest
+
+from spidermatch.correspondence import active_edges, check_solution
+from spidermatch.curve import SpiderCurve, spider_curve
+from spidermatch.lazy_model import LazyModel
+from spidermatch.product_graph import build_product_graph
+from spidermatch.remesh import decimate
+from spidermatch.solve.colgen import price, stay_seed
+from spidermatch.solve.fixing import dual_bound, sign_corrected_duals
+from spidermatch.solve.highs import SolverOptions
+from spidermatch.solve.strategies import solve_plain, solve_with_strategy
+from spidermatch.synthetic import make_creature
+from tests.test_ilp import TRIANGLE, brute_force
+
+EXACT = SolverOptions(mip_rel_gap=0.0)
+
+
+def tiny_lazy(curve_vertices, seed):
+    """A LazyModel on a triangle target with random geometry and feature costs."""
+    rng = np.random.default_rng(seed)
+    curve = SpiderCurve(np.asarray(curve_vertices), int(max(curve_vertices)) + 1)
+    graph = build_product_graph(curve.length, 3, TRIANGLE)
+    return LazyModel(
+        graph,
+        curve,
+        rng.normal(size=(curve.n_mesh_verts, 3)),
+        rng.normal(size=(3, 3)),
+        rng.uniform(0.1, 1.0, (curve.n_mesh_verts, 3)),
+    )
+
+
+def creature_lazy(faces, seed):
+    source = decimate(make_creature(600, seed=seed).mesh.centred(), faces).mesh
+    target = decimate(make_creature(600, seed=seed + 1).mesh.centred(), faces).mesh
+    curve = spider_curve(source, seed=0)
+    graph = build_product_graph(curve.length, target.n_verts, target.edges)
+    vertex_costs = np.random.default_rng(seed).uniform(0.0, 1.0, (source.n_verts, target.n_verts))
+    return LazyModel(graph, curve, source.verts, target.verts, vertex_costs)
+
+
+def assert_one_checked_path(lazy, x):
+    graph = lazy.graph
+    undirected = graph.target_edges[: graph.target_edges.shape[0] // 2]
+    assert check_solution(lazy.curve.vertices, undirected, graph.n_target, active_edges(graph, x)).ok
+
+
+@pytest.mark.parametrize("curve_vertices", [[0, 1, 0, 2], [0, 1, 2, 3], [0, 1, 2, 1]])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_colgen_optimum_equals_brute_force_and_plain(curve_vertices, seed):
+    lazy = tiny_lazy(curve_vertices, seed)
+    solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, EXACT)
+    expected = brute_force(lazy.curve, lazy.graph, lazy.costs(np.arange(lazy.n_vars)))
+    plain = solve_with_strategy("plain", lazy, lazy.graph, lazy.curve, EXACT)
+    assert solved.status == "optimal" and plain.status == "optimal"
+    assert solved.objective == pytest.approx(expected, rel=1e-9)
+    assert plain.objective == pytest.approx(expected, rel=1e-9)
+    assert solved.bound <= expected + 1e-9
+    assert_one_checked_path(lazy, solved.x)
+
+
+@pytest.mark.parametrize("seed", [3, 7])
+def test_colgen_bound_holds_when_the_optimum_needs_columns_the_seed_lacked(seed, monkeypatch, caplog):
+    import spidermatch.solve.colgen as colgen
+
+    lazy = creature_lazy(24, seed)
+    plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
+    seeds = []
+
+    def stay_only(model, neighbours=colgen.SEED_NEIGHBOURS):  # the first restricted model: stays at y0 only
+        seeds.append(colgen.stay_seed(model))
+        return seeds[-1]
+
+    monkeypatch.setattr(colgen, "feature_seed", stay_only)
+    monkeypatch.setattr(colgen, "FIRST_STEP", 0.0)  # the first MIP: LP support and stay seed only
+    with caplog.at_level("INFO", logger="spidermatch.solve.colgen"):
+        solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, EXACT)
+    used = np.flatnonzero(solved.x > 0.5)
+    assert not np.isin(used, seeds[0]).all()  # the optimal path uses columns the seed did not have
+    assert "colgen round 2" in caplog.text  # they were priced in
+    assert "colgen step 2" in caplog.text  # and the MIPs' column set had to grow
+    assert solved.status == "optimal"
+    assert solved.objective == pytest.approx(plain.objective, rel=1e-6)
+    assert solved.bound <= plain.objective * (1 + 1e-9)
+    assert 0 < solved.columns_built <= lazy.n_vars
+    assert_one_checked_path(lazy, solved.x)
+
+
+def test_pricing_bound_is_valid_for_any_multipliers_and_matches_the_full_pass(rng):
+    lazy = creature_lazy(24, 3)
+    model = lazy.full_model()
+    optimum = solve_plain(model, lazy.graph, lazy.curve, EXACT).objective
+    for _ in range(3):
+        y = rng.normal(0.0, 0.01, model.n_rows)
+        full, corrected = dual_bound(model, y), sign_corrected_duals(model, y)
+        priced = price(lazy, corrected, threshold=0.0)
+        assert priced.bound == pytest.approx(full.bound, rel=1e-9, abs=1e-12)
+        assert priced.bound <= optimum + 1e-9
+        np.testing.assert_array_equal(
+            priced.columns, np.flatnonzero(model.costs - model.matrix.T @ corrected <= 0)
+        )
+        assert priced.min_outside > 0.0
+
+
+def test_stay_seed_alone_is_a_feasible_solution():
+    lazy = creature_lazy(24, 5)
+    model = lazy.full_model()
+    x = np.zeros(lazy.n_vars)
+    x[stay_seed(lazy)] = 1.0
+    activity = model.matrix @ x
+    assert (activity >= model.row_lower - 1e-12).all() and (activity <= model.row_upper + 1e-12).all()
+
+
+def test_colgen_needs_a_lazy_model():
+    lazy = tiny_lazy([0, 1, 0, 2], 0)
+    with pytest.raises(TypeError, match="LazyModel"):
+        solve_with_strategy("colgen", lazy.full_model(), lazy.graph, lazy.curve, EXACT)

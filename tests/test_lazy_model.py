@@ -1,0 +1,62 @@
+import numpy as np
+import pytest
+
+from spidermatch.costs import RobustLoss, feature_cost_matrix, product_edge_costs
+from spidermatch.curve import spider_curve
+from spidermatch.ilp import build_model
+from spidermatch.lazy_model import LazyModel
+from spidermatch.product_graph import build_product_graph
+from spidermatch.remesh import decimate
+from spidermatch.synthetic import make_creature
+
+
+def small_problem(families=("CYC", "CON", "PES", "ANS"), faces=60, seed=5):
+    source = decimate(make_creature(800, seed).mesh, faces).mesh
+    target = decimate(make_creature(800, seed + 1).mesh, faces).mesh
+    rng = np.random.default_rng(seed)
+    features_x = rng.normal(size=(source.n_verts, 6))
+    features_y = rng.normal(size=(target.n_verts, 6))
+    curve = spider_curve(source, seed=0)
+    graph = build_product_graph(curve.length, target.n_verts, target.edges)
+    vertex_costs = feature_cost_matrix(features_x, features_y, RobustLoss())
+    lazy = LazyModel(graph, curve, source.verts, target.verts, vertex_costs, families)
+    costs = product_edge_costs(graph, curve.vertices, source.verts, target.verts, vertex_costs)
+    return lazy, build_model(graph, curve, costs, families)
+
+
+@pytest.mark.parametrize("families", [("CYC", "CON", "PES", "ANS"), ("CYC", "CON"), ("CYC", "CON", "ANS")])
+def test_submodel_of_all_columns_is_the_full_model(families):
+    lazy, model = small_problem(families)
+    assert lazy.curve.duplicate_layers.size > 0  # PES rows exist
+    sub = lazy.submodel(np.arange(lazy.n_vars))
+    assert sub.row_families == model.row_families
+    np.testing.assert_allclose(sub.costs, model.costs, rtol=1e-12)
+    np.testing.assert_array_equal(sub.row_lower, model.row_lower)
+    np.testing.assert_array_equal(sub.row_upper, model.row_upper)
+    assert (sub.matrix != model.matrix).nnz == 0
+
+
+def test_submodel_columns_are_the_full_models_columns():
+    lazy, model = small_problem()
+    columns = np.sort(np.random.default_rng(0).choice(lazy.n_vars, size=500, replace=False))
+    sub = lazy.submodel(columns)
+    assert (sub.matrix != model.matrix[:, columns]).nnz == 0
+    np.testing.assert_allclose(sub.costs, model.costs[columns], rtol=1e-12)
+
+
+def test_block_reduced_costs_equal_c_minus_a_transpose_y():
+    lazy, model = small_problem()
+    y = np.random.default_rng(1).normal(size=model.n_rows)
+    expected = model.costs - model.matrix.T @ y
+    potentials = lazy.potentials(y)
+    got = np.concatenate([lazy.block_reduced_costs(a, b, potentials) for a, b in lazy.layer_blocks(7)])
+    np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-10)
+
+
+def test_blockwise_full_model_equals_build_model():
+    lazy, model = small_problem()
+    blockwise = lazy.full_model(block_columns=5 * lazy.graph.block_size + 3)  # uneven blocks
+    assert blockwise.matrix.indices.dtype == np.int32
+    assert (blockwise.matrix != model.matrix).nnz == 0
+    np.testing.assert_allclose(blockwise.costs, model.costs, rtol=1e-12)
+    assert blockwise.row_families == model.row_families
