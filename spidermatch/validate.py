@@ -18,6 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from spidermatch.curve import MATCHINGS
 from spidermatch.mesh import Mesh, MeshError, face_edges
 
 logger = logging.getLogger(__name__)
@@ -117,6 +118,10 @@ def costs_and_curve_problems(cfg) -> list[str]:
         problems.append(
             f"curve.decimation={_show(cfg.curve.get('decimation'))}: choose from {', '.join(DECIMATIONS)}"
         )
+    if cfg.curve.get("matching", "greedy") not in MATCHINGS:
+        problems.append(
+            f"curve.matching={_show(cfg.curve.get('matching'))}: choose from {', '.join(MATCHINGS)}"
+        )
     return problems
 
 
@@ -130,10 +135,10 @@ def check_options(cfg) -> None:
 
     """
     from spidermatch.ilp import FAMILIES
-    from spidermatch.solve.strategies import STRATEGIES
+    from spidermatch.solve.strategies import LAZY_STRATEGIES, STRATEGIES
 
     problems = [resolution_problem(cfg.get("resolution"))]
-    problems += solver_problems(cfg.solver, sorted(STRATEGIES))
+    problems += solver_problems(cfg.solver, sorted({*STRATEGIES, *LAZY_STRATEGIES}))
     problems.append(constraints_problem(cfg.costs.get("constraints"), FAMILIES))
     problems += costs_and_curve_problems(cfg)
     problems = [p for p in problems if p]

@@ -146,6 +146,16 @@ def test_02_bad_solver_options_exit_2_naming_the_option(tmp_path):
         assert result["proven_optimal"] is False and "bound" not in result
 
 
+def test_02_every_strategy_and_curve_matching_is_accepted_and_unknown_ones_named():
+    from spidermatch.validate import OptionError, check_options
+
+    for strategy in ("rcfix", "plain", "colgen"):
+        for matching in ("greedy", "blossom"):
+            check_options(config("match", [f"solver.strategy={strategy}", f"curve.matching={matching}"]))
+    with pytest.raises(OptionError, match="curve.matching='zigzag'"):
+        check_options(config("match", ["curve.matching=zigzag"]))
+
+
 def test_02_highs_rejecting_a_value_is_an_error():
     import highspy
 
