@@ -57,13 +57,7 @@ def extract_path(graph: ProductGraph, x: np.ndarray) -> MatchingPath:
 
     """
     tuples = active_edges(graph, x)
-    crossing = tuples[tuples[:, 4] != INTRA]
-    if len(crossing) != graph.n_layers or set(crossing[:, 2].tolist()) != set(range(graph.n_layers)):
-        raise SolutionError(
-            f"the path crosses {len(crossing)} layer boundaries, expected each of the {graph.n_layers} once"
-        )
-    entry = np.empty(graph.n_layers, dtype=np.int64)
-    entry[crossing[:, 2]] = crossing[:, 3]
+    entry = _layer_entries(graph, tuples)
     walk = _euler_walk(tuples, start=(0, int(entry[0])))
     if len(walk) != len(tuples):
         raise SolutionError(
@@ -85,14 +79,19 @@ def entries_without_flow(graph: ProductGraph, x: np.ndarray) -> MatchingPath:
 
     """
     tuples = active_edges(graph, x)
+    return MatchingPath(tuples, _layer_entries(graph, tuples))
+
+
+def _layer_entries(graph: ProductGraph, tuples: np.ndarray) -> np.ndarray:
+    """Target vertex (L,) where the solution enters each layer; each boundary must be crossed once."""
     crossing = tuples[tuples[:, 4] != INTRA]
     if len(crossing) != graph.n_layers or set(crossing[:, 2].tolist()) != set(range(graph.n_layers)):
         raise SolutionError(
-            f"the solution crosses {len(crossing)} layer boundaries, expected each of {graph.n_layers} once"
+            f"the path crosses {len(crossing)} layer boundaries, expected each of the {graph.n_layers} once"
         )
     entry = np.empty(graph.n_layers, dtype=np.int64)
     entry[crossing[:, 2]] = crossing[:, 3]
-    return MatchingPath(tuples, entry)
+    return entry
 
 
 def _euler_walk(tuples: np.ndarray, start: tuple[int, int]) -> list[int]:
