@@ -39,16 +39,19 @@ from spidermatch.remesh import Decimated
 
 VAL_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
 
-# Variant name -> DenseSettings keywords.
+# Variant name -> DenseSettings keywords (the ones not given are DenseSettings' defaults).
+NARROW = dict(radius=1.0, distance_weight=1.0, n_neighbours=32)  # the earlier interp_features settings
 VARIANTS = {
     "interp": dict(method="interp", smoothing=0),
     "interp_s3": dict(method="interp", smoothing=3),
-    "interp_features": dict(method="interp_features", smoothing=0),
-    "interp_features_s3": dict(method="interp_features", smoothing=3),
+    "interp_features": dict(method="interp_features", smoothing=0, **NARROW),
+    "interp_features_s3": dict(method="interp_features", smoothing=3, **NARROW),
+    "features_r2_s3": dict(method="interp_features", smoothing=3),
+    "features_r3_s3": dict(method="interp_features", smoothing=3, radius=3.0),
     "zoomout": dict(method="zoomout", smoothing=0),
-    "zoomout_local": dict(method="zoomout_local", smoothing=0),
-    "zoomout_local_s3": dict(method="zoomout_local", smoothing=3),
-    "zoomout_accept_s3": dict(method="zoomout_accept", smoothing=3),
+    "zoomout_local": dict(method="zoomout_local", smoothing=0, radius=1.0, n_neighbours=32),
+    "zoomout_local_s3": dict(method="zoomout_local", smoothing=3, radius=1.0, n_neighbours=32),
+    "zoomout_accept_s3": dict(method="zoomout_accept", smoothing=3, radius=1.0),
     "zoomout_s3": dict(method="zoomout", smoothing=3),
 }
 FIELDS = ("pair", "method", "geodesic_error", "tears", "flips", "flipped", "degenerate", "time_s", "peak_mib")

@@ -4,16 +4,22 @@ Methods (``DenseSettings.method``):
 
 ``interp``
     Each full-resolution source vertex is projected onto the low-resolution source
-    surface (triangle + barycentric coordinates). The triangle's three certified
+    surface (triangle + barycentric coordinates), among the low-resolution triangles
+    around the low-resolution vertex nearest to it along the surface
+    (:mod:`spidermatch.coarse`; a projection by distance in space alone lands on the
+    wrong body part where two parts nearly touch). The triangle's three certified
     images (low-resolution target vertices) are blended with the same barycentric
-    weights. The blend lies on the low-resolution target surface; it is carried to
-    the full-resolution target through the target's own projection onto its
-    low-resolution surface (the full-resolution triangle whose projection contains
-    the blend, with the same barycentric coordinates).
-``interp_features``
+    weights. The blend is carried to the full-resolution target through the target's
+    own projection onto its low-resolution surface (the full-resolution triangle, among
+    those of the three images' surface patches, whose projection contains the blend,
+    with the same barycentric coordinates).
+``interp_features`` (the default)
     ``interp``, then among the full-resolution target vertices within a local radius
-    (a multiple of the low-resolution edge length there) of the interpolated point,
-    the one with the smallest feature distance plus a distance penalty.
+    (a multiple of the low-resolution edge length there; 2 by default) of the
+    interpolated point, the one with the smallest feature distance, plus an optional
+    distance penalty (0 by default). The certified map decides where a vertex goes to
+    within two coarse edges; the descriptors, which are locally sharper than a
+    quantised low-resolution map, place it there.
 ``zoomout``
     ZoomOut spectral upsampling (Melzi et al. 2019) started from the ``interp`` map:
     alternately fit a functional map in the first k eigenfunctions and re-read the
@@ -37,10 +43,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from spidermatch.coarse import coarse_labels, faces_by_label, project_onto_coarse, ring_faces
 from spidermatch.mesh import Mesh
 from spidermatch.remesh import Decimated
 from spidermatch.surface import (
-    closest_surface_points,
     closest_triangle_points,
     nearest_corner,
     surface_positions,
@@ -77,10 +83,10 @@ class DenseSettings:
 
     """
 
-    method: str = "zoomout_local"
-    radius: float = 1.0
-    distance_weight: float = 1.0
-    n_neighbours: int = 32
+    method: str = "interp_features"
+    radius: float = 2.0
+    distance_weight: float = 0.0
+    n_neighbours: int = 256
     spectral_start: int = 20
     spectral_stop: int = 100
     spectral_step: int = 5
@@ -208,7 +214,10 @@ def smoothed(dense: DenseMap, source: Mesh, target: Mesh, fixed: np.ndarray, rou
     for _ in range(rounds):
         points = 0.5 * points + 0.5 * (adjacency @ points)
         points[fixed] = anchored
-    face, bary = closest_surface_points(target, points)
+    # Each point may only land near where it started (its vertex's two rings of faces): a
+    # free projection jumps to another body part where two parts nearly touch.
+    candidates = ring_faces(target, dense.vertex)
+    face, bary = closest_triangle_points(target.verts, target.faces, points, candidates=candidates)
     return DenseMap(nearest_corner(target, face, bary), face, bary, dense.method)
 
 
@@ -226,15 +235,22 @@ def interpolated_points(
         Mean length of the low-resolution target edges at the three images (the local scale).
 
     """
-    low_face, low_bary = closest_surface_points(low_x.mesh, source.verts, clip=False)
+    low_face, low_bary = project_onto_coarse(source, low_x, clip=False)
     images = low_map[low_x.mesh.faces[low_face]]
     blended = np.einsum("nk,nkd->nd", low_bary, low_y.mesh.verts[images])
     # Invert the target's own projection onto its low-resolution surface: locate the blend
     # among the projected full-resolution triangles and carry its barycentric coordinates
-    # back to the full-resolution triangle (the identity when source = target).
-    target_face, target_bary = closest_surface_points(low_y.mesh, target.verts, clip=False)
+    # back to the full-resolution triangle (the identity when source = target). Only the
+    # triangles of the three images' own surface patches are candidates, so a blend never
+    # lands on another body part that happens to be near in space.
+    target_labels = coarse_labels(target, low_y)
+    candidates = ring_faces(low_y.mesh, target_labels)
+    target_face, target_bary = closest_triangle_points(
+        low_y.mesh.verts, low_y.mesh.faces, target.verts, clip=False, candidates=candidates
+    )
     projected = surface_positions(low_y.mesh, target_face, target_bary)
-    face, bary = closest_triangle_points(projected, target.faces, blended)
+    patches = faces_by_label(target, target_labels, low_y.mesh.n_verts)[images].reshape(len(images), -1)
+    face, bary = closest_triangle_points(projected, target.faces, blended, candidates=patches)
     local_edge = mean_incident_edge_length(low_y.mesh)[images].mean(axis=1)
     return face, bary, local_edge
 
@@ -292,10 +308,31 @@ def feature_refined_vertices(
 
     """
     index, distance, inside = local_candidates(target, points, radius, settings.n_neighbours)
-    similarity = np.einsum("nd,nkd->nk", source_unit, target_unit[index])
+    similarity = candidate_similarities(source_unit, target_unit, index)
     cost = 1.0 - similarity + settings.distance_weight * (distance / radius[:, None]) ** 2
     cost[~inside] = np.inf
     return index[np.arange(len(points)), np.argmin(cost, axis=1)].astype(np.int64)
+
+
+def candidate_similarities(source_unit: np.ndarray, target_unit: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """Cosine similarity of each source row (N, D) with its candidate target rows ``index`` (N, K).
+
+    Computed a block of source rows at a time against all targets in single precision
+    (a (block, V_Y) product), instead of gathering an (N, K, D) array.
+
+    Returns
+    -------
+    np.ndarray, shape (N, K), float32
+
+    """
+    from spidermatch.zoomout import BLOCK
+
+    targets = np.ascontiguousarray(target_unit, dtype=np.float32)
+    out = np.empty(index.shape, dtype=np.float32)
+    for start in range(0, len(index), BLOCK):
+        block = np.asarray(source_unit[start : start + BLOCK], dtype=np.float32) @ targets.T
+        out[start : start + BLOCK] = np.take_along_axis(block, index[start : start + BLOCK], axis=1)
+    return out
 
 
 def spectral_vertices(

@@ -87,24 +87,56 @@ def closest_triangle_points(
     points: np.ndarray,
     n_candidates: int = DEFAULT_CANDIDATES,
     clip: bool = True,
+    candidates: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`closest_surface_points` on raw arrays (V, 3), (F, 3); degenerate triangles allowed."""
+    """:func:`closest_surface_points` on raw arrays (V, 3), (F, 3); degenerate triangles allowed.
+
+    ``candidates`` (N, C), optional: the faces each point may land on (instead of the
+    faces nearest in space); -1 entries are padding, each row needs one face.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(points) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    if candidates is None:
+        candidates = _candidate_faces(verts, faces, points, n_candidates)
+    row, face = _distinct_pairs(candidates)
+    closest = _closest_points_blockwise(verts[faces[face]], points[row])
+    distance = np.linalg.norm(closest - points[row], axis=1)
+    # The nearest candidate of each point: sort by (point, distance), take each point's first.
+    order = np.lexsort((distance, row))
+    first = order[np.concatenate([[0], np.flatnonzero(np.diff(row[order])) + 1])]
+    if len(first) != len(points):
+        raise ValueError("every point needs at least one candidate face")
+    best_face = face[first]
+    if clip:
+        bary = barycentric_coordinates(verts[faces[best_face]], closest[first])
+    else:
+        bary = barycentric_coordinates(verts[faces[best_face]], points, clip=False)
+    return best_face.astype(np.int64), bary
+
+
+# Triangle-point pairs per call of trimesh's closest_point (bounds its temporary arrays).
+PAIR_BLOCK = 65536
+
+
+def _distinct_pairs(candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(point, face) pairs of a candidate table (N, C), without padding (-1) or repeats, row-sorted."""
+    ordered = np.sort(candidates, axis=1)
+    keep = ordered >= 0
+    keep[:, 1:] &= ordered[:, 1:] != ordered[:, :-1]
+    row = np.broadcast_to(np.arange(len(ordered), dtype=np.int64)[:, None], ordered.shape)
+    return row[keep], ordered[keep].astype(np.int64)
+
+
+def _closest_points_blockwise(triangles: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Closest point of each triangle (N, 3, 3) to its point (N, 3), shape (N, 3)."""
     from trimesh.triangles import closest_point
 
-    points = np.asarray(points, dtype=np.float64)
-    candidates = _candidate_faces(verts, faces, points, n_candidates)
-    n, k = candidates.shape
-    triangles = verts[faces[candidates.reshape(-1)]]
-    closest = closest_point(triangles, np.repeat(points, k, axis=0)).reshape(n, k, 3)
-    distance = np.linalg.norm(closest - points[:, None, :], axis=2)
-    best = np.argmin(distance, axis=1)
-    rows = np.arange(n)
-    face = candidates[rows, best]
-    if clip:
-        bary = barycentric_coordinates(verts[faces[face]], closest[rows, best])
-    else:
-        bary = barycentric_coordinates(verts[faces[face]], points, clip=False)
-    return face.astype(np.int64), bary
+    out = np.empty_like(points)
+    for start in range(0, len(points), PAIR_BLOCK):
+        stop = start + PAIR_BLOCK
+        out[start:stop] = closest_point(triangles[start:stop], points[start:stop])
+    return out
 
 
 def _candidate_faces(

@@ -1,0 +1,95 @@
+"""Where the vertices of a full-resolution mesh lie on its decimation, found along the surface.
+
+Projecting a vertex onto the nearest low-resolution triangle in space goes wrong where
+two parts of a body nearly touch (a hand on a hip, the thighs): the nearest triangle
+may belong to the other part. Here every full-resolution vertex first gets the
+low-resolution vertex nearest to it along the edges of the full mesh (its *label*),
+and it may only land on low-resolution triangles around that vertex and its neighbours.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
+
+from spidermatch.mesh import Mesh
+from spidermatch.remesh import Decimated
+from spidermatch.surface import closest_triangle_points, face_table
+
+
+def coarse_labels(full: Mesh, low: Decimated) -> np.ndarray:
+    """Low-resolution vertex nearest to each full-resolution vertex along the full mesh's edges.
+
+    Returns
+    -------
+    np.ndarray, shape (V_full,), int64
+        Index into ``low.mesh`` vertices; a vertex of another connected component
+        than every low-resolution vertex gets the nearest one in space.
+
+    """
+    edges = full.edges
+    length = np.linalg.norm(full.verts[edges[:, 0]] - full.verts[edges[:, 1]], axis=1)
+    graph = sp.coo_matrix((np.maximum(length, 1e-12), (edges[:, 0], edges[:, 1])), (full.n_verts,) * 2)
+    _, _, nearest_source = dijkstra(
+        graph.tocsr(), directed=False, indices=np.unique(low.to_full), min_only=True, return_predecessors=True
+    )
+    low_of_full = np.full(full.n_verts, -1, dtype=np.int64)
+    low_of_full[low.to_full] = np.arange(len(low.to_full))
+    labels = np.where(nearest_source >= 0, low_of_full[np.maximum(nearest_source, 0)], -1)
+    unreached = labels < 0
+    if unreached.any():
+        from scipy.spatial import cKDTree
+
+        labels[unreached] = cKDTree(low.mesh.verts).query(full.verts[unreached])[1]
+    return labels
+
+
+def vertex_rings(mesh: Mesh) -> np.ndarray:
+    """Each vertex and its neighbours, shape (V, 1 + max degree), padded with the vertex itself."""
+    edges = mesh.edges
+    both = np.concatenate([edges, edges[:, ::-1]])
+    order = np.argsort(both[:, 0], kind="stable")
+    first, second = both[order, 0], both[order, 1]
+    counts = np.bincount(first, minlength=mesh.n_verts)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    slot = np.arange(len(first)) - np.repeat(starts, counts)
+    table = np.repeat(np.arange(mesh.n_verts)[:, None], 1 + max(int(counts.max(initial=0)), 0), axis=1)
+    table[first, 1 + slot] = second
+    return table
+
+
+def ring_faces(mesh: Mesh, vertices: np.ndarray) -> np.ndarray:
+    """Faces around each given vertex and around its neighbours, shape (N, C), padded with -1."""
+    around = face_table(mesh.faces, mesh.n_verts)[vertex_rings(mesh)[vertices]]
+    return around.reshape(len(vertices), -1)
+
+
+def project_onto_coarse(full: Mesh, low: Decimated, clip: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Each full-resolution vertex's closest point on the low-resolution surface near its label.
+
+    Returns
+    -------
+    face : np.ndarray, shape (V_full,), int64
+        Low-resolution face.
+    bary : np.ndarray, shape (V_full, 3)
+        See :func:`spidermatch.surface.closest_triangle_points` for ``clip``.
+
+    """
+    candidates = ring_faces(low.mesh, coarse_labels(full, low))
+    mesh = low.mesh
+    return closest_triangle_points(mesh.verts, mesh.faces, full.verts, clip=clip, candidates=candidates)
+
+
+def faces_by_label(full: Mesh, labels: np.ndarray, n_low: int) -> np.ndarray:
+    """Full-resolution faces touching a vertex of each label, shape (n_low, C), padded with -1."""
+    corner_label = labels[full.faces]
+    rows = np.concatenate([corner_label[:, k] for k in range(3)])
+    faces = np.tile(np.arange(len(full.faces)), 3)
+    pairs = np.unique(np.stack([rows, faces], axis=1), axis=0)
+    counts = np.bincount(pairs[:, 0], minlength=n_low)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    slot = np.arange(len(pairs)) - np.repeat(starts, counts)
+    table = np.full((n_low, max(int(counts.max(initial=0)), 1)), -1, dtype=np.int64)
+    table[pairs[:, 0], slot] = pairs[:, 1]
+    return table

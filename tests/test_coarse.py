@@ -1,0 +1,89 @@
+"""Projection of full-resolution vertices onto their decimation, along the surface."""
+
+import numpy as np
+
+from spidermatch.coarse import coarse_labels, faces_by_label, project_onto_coarse, ring_faces, vertex_rings
+from spidermatch.mesh import Mesh
+from spidermatch.remesh import Decimated
+from spidermatch.surface import closest_surface_points, closest_triangle_points
+
+
+def grid(n: int, height: float, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n vertex grid in the plane z = height, every ``step``-th vertex, as (verts, faces)."""
+    coords = np.arange(0, n, step, dtype=float) / (n - 1)
+    m = len(coords)
+    x, y = np.meshgrid(coords, coords, indexing="ij")
+    verts = np.stack([x.ravel(), y.ravel(), np.full(m * m, height)], axis=1)
+    index = np.arange(m * m).reshape(m, m)
+    a, b, c, d = index[:-1, :-1], index[1:, :-1], index[:-1, 1:], index[1:, 1:]
+    faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
+    return verts, faces
+
+
+def two_sheets() -> tuple[Mesh, Decimated, np.ndarray]:
+    """Two parallel sheets 0.1 apart; the coarse upper sheet sits 0.15 above the fine one.
+
+    So the coarse triangles nearest in space to the fine upper vertices are those of the lower
+    sheet, as where two body parts nearly touch. Returns the mesh, its coarse version and a
+    (V,) bool of the upper fine vertices.
+    """
+    lower, lower_faces = grid(9, 0.0)
+    upper, upper_faces = grid(9, 0.1)
+    full = Mesh(np.vstack([lower, upper]), np.vstack([lower_faces, upper_faces + len(lower)]), "sheets")
+    coarse_lower, coarse_faces = grid(9, 0.0, step=2)
+    coarse_upper, _ = grid(9, 0.25, step=2)
+    low_mesh = Mesh(
+        np.vstack([coarse_lower, coarse_upper]),
+        np.vstack([coarse_faces, coarse_faces + len(coarse_lower)]),
+        "coarse",
+    )
+    sub = np.arange(0, 9, 2)
+    one_sheet = (sub[:, None] * 9 + sub[None, :]).ravel()
+    to_full = np.concatenate([one_sheet, one_sheet + len(lower)])
+    upper_mask = np.arange(full.n_verts) >= len(lower)
+    return full, Decimated(low_mesh, to_full), upper_mask
+
+
+def test_labels_follow_the_surface_not_space():
+    full, low, upper = two_sheets()
+    labels = coarse_labels(full, low)
+    coarse_upper = low.mesh.verts[:, 2] > 0.1
+    assert np.array_equal(coarse_upper[labels], upper)
+    assert np.all(labels[low.to_full] == np.arange(len(low.to_full)))
+
+
+def test_projection_stays_on_its_own_sheet_where_space_would_jump():
+    full, low, upper = two_sheets()
+    face, _ = project_onto_coarse(full, low)
+    coarse_upper_face = low.mesh.verts[low.mesh.faces[:, 0], 2] > 0.1
+    assert np.array_equal(coarse_upper_face[face], upper)
+    spatial_face, _ = closest_surface_points(low.mesh, full.verts)
+    assert not np.array_equal(coarse_upper_face[spatial_face], upper)  # the case is a real trap
+
+
+def test_candidates_with_repeats_and_padding_give_the_free_search_result():
+    verts, faces = grid(7, 0.0)
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(0, 1, (40, 2)), rng.normal(0, 0.05, 40)])
+    free_face, free_bary = closest_triangle_points(verts, faces, points, n_candidates=len(faces))
+    every = np.tile(np.arange(len(faces)), (len(points), 1))
+    padded = np.concatenate([every, every[:, :5], np.full((len(points), 3), -1)], axis=1)
+    face, bary = closest_triangle_points(verts, faces, points, candidates=padded)
+    free_points = np.einsum("nk,nkd->nd", free_bary, verts[faces[free_face]])
+    points_found = np.einsum("nk,nkd->nd", bary, verts[faces[face]])
+    np.testing.assert_allclose(points_found, free_points, atol=1e-12)
+
+
+def test_rings_and_label_tables_cover_their_vertices():
+    full, low, _ = two_sheets()
+    rings = vertex_rings(low.mesh)
+    assert np.all(rings[:, 0] == np.arange(low.mesh.n_verts))
+    for a, b in low.mesh.edges:
+        assert b in rings[a] and a in rings[b]
+    around = ring_faces(low.mesh, np.array([0]))
+    assert set(around[0][around[0] >= 0]) >= set(np.flatnonzero((low.mesh.faces == 0).any(axis=1)))
+    labels = coarse_labels(full, low)
+    table = faces_by_label(full, labels, low.mesh.n_verts)
+    for face_index, corners in enumerate(full.faces):
+        for label in set(labels[corners]):
+            assert face_index in table[label]
