@@ -71,7 +71,7 @@ def test_colgen_bound_holds_when_the_optimum_needs_columns_the_seed_lacked(seed,
         seeds.append(colgen.stay_seed(model))
         return seeds[-1]
 
-    monkeypatch.setattr(colgen, "feature_seed", stay_only)
+    monkeypatch.setattr(colgen, "path_band_seed", stay_only)
     monkeypatch.setattr(colgen, "FIRST_STEP", 0.0)  # the first MIP: LP support and stay seed only
     with caplog.at_level("INFO", logger="spidermatch.solve.colgen"):
         solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, EXACT)

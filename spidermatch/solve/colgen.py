@@ -8,7 +8,9 @@ few more. ``colgen`` works on a :class:`~spidermatch.lazy_model.LazyModel`, whic
 holds only what defines the columns and produces any of them on demand:
 
 1. **Seed.** Per curve position the edges among the ``SEED_NEIGHBOURS`` targets of
-   lowest feature cost and their 1-ring, plus the *stay seed*: the stay edges at one
+   lowest feature cost and their 1-ring, and a band around a cheap closed path
+   (:mod:`spidermatch.solve.path_seed`: without it, column generation needed up to 25
+   rounds where the features alone miss the optimal path), plus the *stay seed*: the stay edges at one
    target vertex y0 in every layer. Alone, the stay seed is a solution of every
    constraint family (one boundary crossing per layer, a closed flow, equal out-flows
    in every layer, no counted edge for ANS) and of every connectivity cut (it has no
@@ -63,6 +65,7 @@ from spidermatch.product_graph import INTRA, ProductGraph
 from spidermatch.solve.connectivity import detached_components
 from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
+from spidermatch.solve.path_seed import cheapest_closed_path, path_plausible
 from spidermatch.solve.strategies import (
     LP_EXTRA,
     CutPool,
@@ -175,10 +178,10 @@ def stay_seed(lazy: LazyModel) -> np.ndarray:
     return np.arange(graph.n_layers, dtype=np.int64) * graph.block_size + stay_entry
 
 
-def feature_seed(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarray:
-    """Edges between plausible targets of consecutive curve vertices, sorted edge ids (k,).
+def feature_plausible(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarray:
+    """Targets plausible by features per source vertex, shape (V_X, V_Y), bool.
 
-    A target is plausible for source vertex p if it is among p's ``neighbours`` of lowest
+    Target y is plausible for source vertex p if it is among p's ``neighbours`` of lowest
     feature cost R[p] or adjacent to one of them.
     """
     graph, costs = lazy.graph, lazy.vertex_costs
@@ -191,14 +194,39 @@ def feature_seed(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarr
         (np.ones(edges.shape[0]), (edges[:, 0], edges[:, 1])), shape=(graph.n_target,) * 2
     )
     plausible |= (sp.csr_matrix(plausible, dtype=np.float64) @ adjacency).toarray() > 0
-    chosen = []
-    block = graph.block_size
+    return plausible
+
+
+def edges_between_plausible(lazy: LazyModel, plausible: np.ndarray) -> np.ndarray:
+    """Sorted edge ids (k,) whose two ends are plausible targets of their curve vertices.
+
+    ``plausible`` has shape (V_X, V_Y): edge ((l, a), (l', b)) is kept if a is plausible for
+    the curve vertex of layer l and b for that of layer l'.
+    """
+    graph, chosen, block = lazy.graph, [], lazy.graph.block_size
     for start, stop in lazy.layer_blocks(max(1, BLOCK_COLUMNS // block)):
         layer, entry, next_layer = lazy.split(np.arange(start * block, stop * block))
         p, q = lazy.curve.vertices[layer], lazy.curve.vertices[next_layer]
         keep = plausible[p, graph.block_src[entry]] & plausible[q, graph.block_dst[entry]]
         chosen.append(np.flatnonzero(keep) + start * block)
     return np.concatenate(chosen)
+
+
+def feature_seed(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarray:
+    """Edges between feature-plausible targets of consecutive curve vertices, sorted edge ids (k,)."""
+    return edges_between_plausible(lazy, feature_plausible(lazy, neighbours))
+
+
+def path_band_seed(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarray:
+    """The feature seed plus a band around a cheap closed path, sorted edge ids (k,).
+
+    See :mod:`spidermatch.solve.path_seed`: the path satisfies CYC and CON only, but its
+    band (a few layers and rings around it, per source vertex) usually holds a near-optimal
+    path of the full model, so column generation starts close to the LP's optimum.
+    """
+    path, _ = cheapest_closed_path(lazy)
+    plausible = feature_plausible(lazy, neighbours) | path_plausible(lazy, path)
+    return np.union1d(edges_between_plausible(lazy, plausible), path)
 
 
 @dataclass(frozen=True, eq=False)
@@ -416,7 +444,7 @@ def solve_column_generation(
     if not isinstance(lazy, LazyModel):
         raise TypeError("the colgen strategy needs a LazyModel (the full model is never built)")
     start = time.perf_counter()
-    seed = np.union1d(feature_seed(lazy), stay_seed(lazy))
+    seed = np.union1d(path_band_seed(lazy), stay_seed(lazy))
     try:
         lp = generate_columns(lazy, seed, options)
     except LpNotSolved as stopped:
