@@ -131,8 +131,11 @@ class _Sweep:
         return int(self.intra_entries[self.slot_of[slot]])
 
 
-def cheapest_closed_path(lazy: LazyModel) -> tuple[np.ndarray, float]:
+def cheapest_closed_path(lazy: LazyModel, start_vertex: int | None = None) -> tuple[np.ndarray, float]:
     """A closed path through every layer (CYC and CON hold; PES, ANS not checked).
+
+    It is the cheapest such path among those entering layer 0 at ``start_vertex`` (default:
+    the target of lowest feature cost for the first curve vertex).
 
     Returns
     -------
@@ -143,7 +146,8 @@ def cheapest_closed_path(lazy: LazyModel) -> tuple[np.ndarray, float]:
 
     """
     sweep = _Sweep(lazy)
-    start_vertex = int(np.argmin(lazy.vertex_costs[lazy.curve.vertices[0]]))
+    if start_vertex is None:
+        start_vertex = int(np.argmin(lazy.vertex_costs[lazy.curve.vertices[0]]))
     start = np.full(lazy.graph.n_target, UNREACHED)
     start[start_vertex] = 0.0
     _, reached_by_layer, previous_by_layer = sweep.run(start)
