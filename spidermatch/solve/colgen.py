@@ -81,7 +81,8 @@ BLOCK_COLUMNS = 1_000_000  # edges priced at once (~80 bytes each in flight)
 MAX_ADD = 100_000  # columns added per pricing round at most (the most negative ones)
 LP_REL_GAP = 1e-7  # column generation stops when the Lagrangian bound is this close to the LP value
 MAX_LP_ROUNDS = 200
-FIRST_STEP = 2e-4  # first MIP: columns with reduced cost <= this times |L(y)|
+FIRST_STEP = 4e-3  # first MIP: columns with reduced cost <= this times |L(y)| (LP gaps are ~0.2-0.6 %)
+PRICED_SPAN = 0.02  # one pricing pass keeps the columns up to this times |L(y)| for all the MIPs
 GROWTH = 4.0  # each further MIP: the threshold grows by at most this factor (or to U - L(y))
 MAX_STEPS = 10
 
@@ -386,6 +387,19 @@ def _no_result(kind: str, message: str, lazy: LazyModel, start: float, bound: fl
     )
 
 
+def within(priced: Pricing, threshold: float) -> Pricing:
+    """The part of a pricing pass at most ``threshold`` (which must not exceed its cutoff).
+
+    Columns between ``threshold`` and the pass's cutoff move outside: ``min_outside`` is the
+    smaller of their least reduced cost and the pass's own ``min_outside``.
+    """
+    if threshold > priced.cutoff:
+        raise ValueError(f"threshold {threshold} above the pricing pass's cutoff {priced.cutoff}")
+    keep = priced.reduced <= threshold
+    min_outside = min(priced.min_outside, float(priced.reduced[~keep].min(initial=math.inf)))
+    return Pricing(priced.bound, priced.columns[keep], priced.reduced[keep], threshold, min_outside)
+
+
 def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResult:
     """Steps 3-4 of the module docstring: MIPs over ``{r_j <= t}`` for a growing threshold t.
 
@@ -400,8 +414,11 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     incumbent = _lp_incumbent(lazy, lp)
     base = np.union1d(lp.support(), stay_seed(lazy))
     threshold, best = FIRST_STEP * abs(lp.bound), None
+    priced = price(lazy, lp.y, PRICED_SPAN * abs(lp.bound))
     for step in range(1, MAX_STEPS + 1):
-        selection = price(lazy, lp.y, threshold)
+        if threshold > priced.cutoff:
+            priced = price(lazy, lp.y, threshold)
+        selection = within(priced, threshold)
         columns = np.union1d(selection.columns, base)
         if incumbent is not None:
             columns = np.union1d(columns, np.flatnonzero(incumbent > 0.5))

@@ -26,8 +26,8 @@ from spidermatch.product_graph import INTRA
 
 logger = logging.getLogger(__name__)
 
-PATH_RINGS = 2  # rings of the target mesh around the path's vertices
-PATH_WINDOW = 2  # the path's vertices at layers within this many positions count for a layer
+PATH_RINGS = 1  # rings of the target mesh around the path's vertices
+PATH_WINDOW = 1  # the path's vertices at layers within this many positions count for a layer
 
 
 UNREACHED = 1e15  # entering cost standing for "cannot enter here" (far above any path's cost)
