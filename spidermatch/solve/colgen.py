@@ -20,9 +20,11 @@ holds only what defines the columns and produces any of them on demand:
    one block of layers at a time (:meth:`LazyModel.block_reduced_costs`); add the
    most negative ones; repeat until no column outside has a negative reduced cost or
    the Lagrangian bound below meets the restricted LP's value.
-3. **Growing MIPs.** With the final duals y and bound L = L(y), a MIP at the target gap
-   over the columns of reduced cost at most a threshold t (plus the LP support, the
-   stay seed and the incumbent's columns), started from the incumbent U. If U <= L + t,
+3. **Growing MIPs.** With the final duals y and bound L = L(y), one pricing pass keeps the
+   columns of reduced cost up to ``PRICED_SPAN |L|`` (:func:`within` slices it for each
+   step); a MIP at the target gap over the columns of reduced cost at most a threshold t
+   (plus the LP support, the stay seed and the incumbent's columns), started from the
+   incumbent U. If U <= L + t,
    every column that a solution of cost <= U could use is in the MIP (reduced-cost
    fixing against U) and its proof covers the full model. Otherwise t grows to
    min(4 t, U - L) and the next MIP starts from U: step by step, never all at once.
