@@ -414,6 +414,9 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     The column sets are appended to ``built``.
     """
     incumbent = _lp_incumbent(lazy, lp)
+    if incumbent is None:  # the stay path satisfies every row and cut: a run that times out still has it
+        incumbent = np.zeros(lazy.n_vars)
+        incumbent[stay_seed(lazy)] = 1.0
     base = np.union1d(lp.support(), stay_seed(lazy))
     threshold, best = FIRST_STEP * abs(lp.bound), None
     priced = price(lazy, lp.y, PRICED_SPAN * abs(lp.bound))
