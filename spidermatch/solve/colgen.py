@@ -70,6 +70,7 @@ from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, re
 from spidermatch.solve.path_seed import cheapest_closed_path, path_plausible
 from spidermatch.solve.strategies import (
     LP_EXTRA,
+    SEED_MIP_GAP,
     CutPool,
     count_fractional,
     remaining,
@@ -405,8 +406,10 @@ def within(priced: Pricing, threshold: float) -> Pricing:
 def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResult:
     """Steps 3-4 of the module docstring: MIPs over ``{r_j <= t}`` for a growing threshold t.
 
-    Each MIP runs at the target gap over the columns of reduced cost at most t, the LP support,
-    the stay seed and the incumbent's columns, started from the incumbent. Every column
+    The first MIP stops at ``SEED_MIP_GAP`` (it only looks for an incumbent and never
+    certifies); each later one runs at the target gap. Each runs over the columns of reduced
+    cost at most t, the LP support, the stay seed and the incumbent's columns, started from
+    the incumbent. Every column
     outside has ``r_j > t``, so any solution using one costs more than ``L + t``: once the
     incumbent U satisfies ``U <= L + t`` the MIP's proof covers the full model. Otherwise
     ``t`` grows to ``min(GROWTH t, U - L)``, which strictly exceeds the last t: a MIP that does
@@ -428,12 +431,16 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         if incumbent is not None:
             columns = np.union1d(columns, np.flatnonzero(incumbent > 0.5))
         built.append(columns)
-        result = _restricted_mip(lazy, columns, remaining(options, start), incumbent, pool, layers)
+        # the first MIP only looks for a good incumbent: it stops at the looser seed gap
+        gap = max(SEED_MIP_GAP, options.mip_rel_gap) if step == 1 else options.mip_rel_gap
+        step_options = replace(remaining(options, start), mip_rel_gap=gap)
+        result = _restricted_mip(lazy, columns, step_options, incumbent, pool, layers)
         if result.x is None:
             break  # time limit before a solution of this step: keep the last one
         incumbent = result.x
         outside = lp.bound + max(selection.min_outside, 0.0)
-        certified = result.status == "optimal" and outside >= result.bound
+        at_target = gap == options.mip_rel_gap  # a run at the seed gap proves only that gap
+        certified = result.status == "optimal" and at_target and outside >= result.bound
         bound = max(lp.bound, min(result.bound, outside))  # both are valid lower bounds
         best = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
         logger.info(
@@ -443,7 +450,9 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         if certified or result.status != "optimal":
             return best if certified else replace(best, status="feasible")
         grown = GROWTH * threshold if threshold > 0 else math.inf
-        threshold = min(grown, result.objective - lp.bound)  # > threshold: see the docstring
+        # > threshold after a run at the target gap (see the docstring); after the seed-gap run
+        # the same threshold may be enough, and the next run is at the target gap
+        threshold = max(threshold, min(grown, result.objective - lp.bound))
     if best is None:
         return replace(result, bound=lp.bound, gap=math.nan)
     return replace(best, status="feasible", message=f"not certified within {MAX_STEPS} steps")
