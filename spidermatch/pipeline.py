@@ -97,7 +97,7 @@ class MatchSettings:
     loss: RobustLoss = field(default_factory=RobustLoss)
     constraints: tuple = FAMILIES
     solver: SolverOptions = field(default_factory=SolverOptions)
-    strategy: str = "rcfix"
+    strategy: str = "colgen"
     dense: DenseSettings | None = field(default_factory=DenseSettings)
 
 
