@@ -234,7 +234,7 @@ def match(
     mip_rel_gap : float, optional
         Relative gap at which a matching counts as optimal (default 1e-4).
     strategy : str, optional
-        "colgen" (default), "rcfix" or "plain".
+        "rcfix" (default) or "plain".
     settings : spidermatch.pipeline.MatchSettings, optional
         Every other option (costs, curve, decimation); the keywords above take precedence.
     strict : bool

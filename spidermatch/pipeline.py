@@ -97,7 +97,7 @@ class MatchSettings:
     loss: RobustLoss = field(default_factory=RobustLoss)
     constraints: tuple = FAMILIES
     solver: SolverOptions = field(default_factory=SolverOptions)
-    strategy: str = "colgen"
+    strategy: str = "rcfix"
     dense: DenseSettings | None = field(default_factory=DenseSettings)
 
 

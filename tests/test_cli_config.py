@@ -70,7 +70,6 @@ def test_saved_config_and_result_describe_the_file_run(tmp_path):
         f"source={root}/off/creature_000.off",
         f"target={root}/off/creature_001.off",
         "resolution=60",
-        "solver.strategy=rcfix",  # the model sizes below are those of the full model rcfix builds
         "output.png=false",
         f"hydra.run.dir={run_dir}",
     ]
