@@ -40,7 +40,12 @@ FULL_MODEL_COLUMNS_PER_FACE2 = 3.74  # |E_P| ~ 0.575 f * 6.5 f on FAUST_r meshes
 
 def run_instance(task: tuple) -> dict:
     """Match one pair at one resolution with one strategy; the row of figures."""
-    data, pair, faces, strategy, features, checkpoint, time_limit, matching = task
+    data, pair, faces, strategy, features, checkpoint, time_limit, matching, log_dir = task
+    if log_dir:  # the solver's INFO log of this instance, one file per instance
+        import logging
+
+        name = f"{pair[0]}_{pair[1]}_{faces}_{strategy}.log"
+        logging.basicConfig(filename=str(Path(log_dir) / name), level=logging.INFO, force=True)
     from spidermatch.evaluate import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match
     from spidermatch.solve.highs import SolverOptions
@@ -128,6 +133,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--time-limit", type=float, default=600.0, help="seconds per solve")
     parser.add_argument("--full-model-columns", type=float, default=2.0e7)
     parser.add_argument("--out", default="bench/results/solver_scaling_faust_val.json")
+    parser.add_argument("--log-dir", default=None, help="write each instance's INFO log to this folder")
     add_feature_options(parser)
     args = parse_checked(parser, argv)
     out, rows = Path(args.out), []
@@ -145,7 +151,8 @@ def main(argv: list[str] | None = None) -> None:
                     task = (args.data, pair, faces, strategy, args.features, args.checkpoint)
                     start = time.perf_counter()
                     with context.Pool(1) as pool:
-                        row = pool.apply(run_instance, (task + (args.time_limit, args.curve_matching),))
+                        extra = (args.time_limit, args.curve_matching, args.log_dir)
+                        row = pool.apply(run_instance, (task + extra,))
                     row["process_s"] = round(time.perf_counter() - start, 1)
                 rows.append(row)
                 print(format_row(row), flush=True)

@@ -286,7 +286,8 @@ def match(
         solved.gap,
     )
     result = MatchResult(low_x, low_y, curve, graph, solved, timings=timings)
-    result.model_size = {"variables": model.n_vars, "rows": model.n_rows, "nonzeros": model.nnz}
+    nonzeros = getattr(model, "nnz", None)  # a LazyModel (colgen) never builds the full matrix
+    result.model_size = {"variables": model.n_vars, "rows": model.n_rows, "nonzeros": nonzeros}
     if solved.x is not None:
         with _stage(timings, "check"):
             _read_solution(result, tuple(settings.constraints))

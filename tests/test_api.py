@@ -169,3 +169,10 @@ def test_settings_defaults_and_precedence():
     overridden = api._settings(MatchSettings(resolution=77), "wks", 90, 12.0, 1e-3, None)
     solver = overridden.solver
     assert (overridden.resolution, solver.time_limit, solver.mip_rel_gap) == (90, 12.0, 1e-3)
+
+
+def test_colgen_strategy_gives_rcfix_objective_through_the_api(pair, from_paths):
+    lazy = spidermatch.match(str(pair.source), pair.target, resolution=RESOLUTION, strategy="colgen")
+    assert lazy.status == "optimal" and lazy.proven_optimal
+    assert lazy.objective == pytest.approx(from_paths.objective, rel=2e-4)  # both within the 1e-4 gap
+    assert lazy.bound <= from_paths.objective * (1 + 1e-4) + 1e-12

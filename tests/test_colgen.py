@@ -71,7 +71,7 @@ def test_colgen_bound_holds_when_the_optimum_needs_columns_the_seed_lacked(seed,
         seeds.append(colgen.stay_seed(model))
         return seeds[-1]
 
-    monkeypatch.setattr(colgen, "feature_seed", stay_only)
+    monkeypatch.setattr(colgen, "path_band_seed", stay_only)
     monkeypatch.setattr(colgen, "FIRST_STEP", 0.0)  # the first MIP: LP support and stay seed only
     with caplog.at_level("INFO", logger="spidermatch.solve.colgen"):
         solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, EXACT)
@@ -115,3 +115,19 @@ def test_colgen_needs_a_lazy_model():
     lazy = tiny_lazy([0, 1, 0, 2], 0)
     with pytest.raises(TypeError, match="LazyModel"):
         solve_with_strategy("colgen", lazy.full_model(), lazy.graph, lazy.curve, EXACT)
+
+
+def test_a_slice_of_one_pricing_pass_equals_pricing_at_the_lower_threshold(rng):
+    from spidermatch.solve.colgen import within
+
+    lazy = creature_lazy(24, 3)
+    model = lazy.full_model()
+    y = sign_corrected_duals(model, rng.normal(0.0, 0.01, model.n_rows))
+    wide = price(lazy, y, threshold=0.05)
+    for threshold in (-0.01, 0.0, 0.01, 0.05):
+        direct, sliced = price(lazy, y, threshold), within(wide, threshold)
+        np.testing.assert_array_equal(sliced.columns, direct.columns)
+        assert sliced.min_outside == pytest.approx(direct.min_outside, rel=1e-12)
+        assert sliced.bound == pytest.approx(direct.bound, rel=1e-12)
+    with pytest.raises(ValueError, match="cutoff"):
+        within(wide, 0.1)

@@ -8,7 +8,9 @@ few more. ``colgen`` works on a :class:`~spidermatch.lazy_model.LazyModel`, whic
 holds only what defines the columns and produces any of them on demand:
 
 1. **Seed.** Per curve position the edges among the ``SEED_NEIGHBOURS`` targets of
-   lowest feature cost and their 1-ring, plus the *stay seed*: the stay edges at one
+   lowest feature cost and their 1-ring, and a band around a cheap closed path
+   (:mod:`spidermatch.solve.path_seed`: without it, column generation needed up to 25
+   rounds where the features alone miss the optimal path), plus the *stay seed*: the stay edges at one
    target vertex y0 in every layer. Alone, the stay seed is a solution of every
    constraint family (one boundary crossing per layer, a closed flow, equal out-flows
    in every layer, no counted edge for ANS) and of every connectivity cut (it has no
@@ -18,9 +20,11 @@ holds only what defines the columns and produces any of them on demand:
    one block of layers at a time (:meth:`LazyModel.block_reduced_costs`); add the
    most negative ones; repeat until no column outside has a negative reduced cost or
    the Lagrangian bound below meets the restricted LP's value.
-3. **Growing MIPs.** With the final duals y and bound L = L(y), a MIP at the target gap
-   over the columns of reduced cost at most a threshold t (plus the LP support, the
-   stay seed and the incumbent's columns), started from the incumbent U. If U <= L + t,
+3. **Growing MIPs.** With the final duals y and bound L = L(y), one pricing pass keeps the
+   columns of reduced cost up to ``PRICED_SPAN |L|`` (:func:`within` slices it for each
+   step); a MIP at the target gap over the columns of reduced cost at most a threshold t
+   (plus the LP support, the stay seed and the incumbent's columns), started from the
+   incumbent U. If U <= L + t,
    every column that a solution of cost <= U could use is in the MIP (reduced-cost
    fixing against U) and its proof covers the full model. Otherwise t grows to
    min(4 t, U - L) and the next MIP starts from U: step by step, never all at once.
@@ -63,8 +67,10 @@ from spidermatch.product_graph import INTRA, ProductGraph
 from spidermatch.solve.connectivity import detached_components
 from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
+from spidermatch.solve.path_seed import cheapest_closed_path, path_plausible
 from spidermatch.solve.strategies import (
     LP_EXTRA,
+    SEED_MIP_GAP,
     CutPool,
     count_fractional,
     remaining,
@@ -78,7 +84,8 @@ BLOCK_COLUMNS = 1_000_000  # edges priced at once (~80 bytes each in flight)
 MAX_ADD = 100_000  # columns added per pricing round at most (the most negative ones)
 LP_REL_GAP = 1e-7  # column generation stops when the Lagrangian bound is this close to the LP value
 MAX_LP_ROUNDS = 200
-FIRST_STEP = 2e-4  # first MIP: columns with reduced cost <= this times |L(y)|
+FIRST_STEP = 4e-3  # first MIP: columns with reduced cost <= this times |L(y)| (LP gaps are ~0.2-0.6 %)
+PRICED_SPAN = 0.02  # one pricing pass keeps the columns up to this times |L(y)| for all the MIPs
 GROWTH = 4.0  # each further MIP: the threshold grows by at most this factor (or to U - L(y))
 MAX_STEPS = 10
 
@@ -175,10 +182,10 @@ def stay_seed(lazy: LazyModel) -> np.ndarray:
     return np.arange(graph.n_layers, dtype=np.int64) * graph.block_size + stay_entry
 
 
-def feature_seed(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarray:
-    """Edges between plausible targets of consecutive curve vertices, sorted edge ids (k,).
+def feature_plausible(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarray:
+    """Targets plausible by features per source vertex, shape (V_X, V_Y), bool.
 
-    A target is plausible for source vertex p if it is among p's ``neighbours`` of lowest
+    Target y is plausible for source vertex p if it is among p's ``neighbours`` of lowest
     feature cost R[p] or adjacent to one of them.
     """
     graph, costs = lazy.graph, lazy.vertex_costs
@@ -191,14 +198,39 @@ def feature_seed(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarr
         (np.ones(edges.shape[0]), (edges[:, 0], edges[:, 1])), shape=(graph.n_target,) * 2
     )
     plausible |= (sp.csr_matrix(plausible, dtype=np.float64) @ adjacency).toarray() > 0
-    chosen = []
-    block = graph.block_size
+    return plausible
+
+
+def edges_between_plausible(lazy: LazyModel, plausible: np.ndarray) -> np.ndarray:
+    """Sorted edge ids (k,) whose two ends are plausible targets of their curve vertices.
+
+    ``plausible`` has shape (V_X, V_Y): edge ((l, a), (l', b)) is kept if a is plausible for
+    the curve vertex of layer l and b for that of layer l'.
+    """
+    graph, chosen, block = lazy.graph, [], lazy.graph.block_size
     for start, stop in lazy.layer_blocks(max(1, BLOCK_COLUMNS // block)):
         layer, entry, next_layer = lazy.split(np.arange(start * block, stop * block))
         p, q = lazy.curve.vertices[layer], lazy.curve.vertices[next_layer]
         keep = plausible[p, graph.block_src[entry]] & plausible[q, graph.block_dst[entry]]
         chosen.append(np.flatnonzero(keep) + start * block)
     return np.concatenate(chosen)
+
+
+def feature_seed(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarray:
+    """Edges between feature-plausible targets of consecutive curve vertices, sorted edge ids (k,)."""
+    return edges_between_plausible(lazy, feature_plausible(lazy, neighbours))
+
+
+def path_band_seed(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarray:
+    """The feature seed plus a band around a cheap closed path, sorted edge ids (k,).
+
+    See :mod:`spidermatch.solve.path_seed`: the path satisfies CYC and CON only, but its
+    band (a few layers and rings around it, per source vertex) usually holds a near-optimal
+    path of the full model, so column generation starts close to the LP's optimum.
+    """
+    path, _ = cheapest_closed_path(lazy)
+    plausible = feature_plausible(lazy, neighbours) | path_plausible(lazy, path)
+    return np.union1d(edges_between_plausible(lazy, plausible), path)
 
 
 @dataclass(frozen=True, eq=False)
@@ -358,11 +390,26 @@ def _no_result(kind: str, message: str, lazy: LazyModel, start: float, bound: fl
     )
 
 
+def within(priced: Pricing, threshold: float) -> Pricing:
+    """The part of a pricing pass at most ``threshold`` (which must not exceed its cutoff).
+
+    Columns between ``threshold`` and the pass's cutoff move outside: ``min_outside`` is the
+    smaller of their least reduced cost and the pass's own ``min_outside``.
+    """
+    if threshold > priced.cutoff:
+        raise ValueError(f"threshold {threshold} above the pricing pass's cutoff {priced.cutoff}")
+    keep = priced.reduced <= threshold
+    min_outside = min(priced.min_outside, float(priced.reduced[~keep].min(initial=math.inf)))
+    return Pricing(priced.bound, priced.columns[keep], priced.reduced[keep], threshold, min_outside)
+
+
 def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResult:
     """Steps 3-4 of the module docstring: MIPs over ``{r_j <= t}`` for a growing threshold t.
 
-    Each MIP runs at the target gap over the columns of reduced cost at most t, the LP support,
-    the stay seed and the incumbent's columns, started from the incumbent. Every column
+    The first MIP stops at ``SEED_MIP_GAP`` (it only looks for an incumbent and never
+    certifies); each later one runs at the target gap. Each runs over the columns of reduced
+    cost at most t, the LP support, the stay seed and the incumbent's columns, started from
+    the incumbent. Every column
     outside has ``r_j > t``, so any solution using one costs more than ``L + t``: once the
     incumbent U satisfies ``U <= L + t`` the MIP's proof covers the full model. Otherwise
     ``t`` grows to ``min(GROWTH t, U - L)``, which strictly exceeds the last t: a MIP that does
@@ -370,20 +417,30 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     The column sets are appended to ``built``.
     """
     incumbent = _lp_incumbent(lazy, lp)
+    if incumbent is None:  # the stay path satisfies every row and cut: a run that times out still has it
+        incumbent = np.zeros(lazy.n_vars)
+        incumbent[stay_seed(lazy)] = 1.0
     base = np.union1d(lp.support(), stay_seed(lazy))
     threshold, best = FIRST_STEP * abs(lp.bound), None
+    priced = price(lazy, lp.y, PRICED_SPAN * abs(lp.bound))
     for step in range(1, MAX_STEPS + 1):
-        selection = price(lazy, lp.y, threshold)
+        if threshold > priced.cutoff:
+            priced = price(lazy, lp.y, threshold)
+        selection = within(priced, threshold)
         columns = np.union1d(selection.columns, base)
         if incumbent is not None:
             columns = np.union1d(columns, np.flatnonzero(incumbent > 0.5))
         built.append(columns)
-        result = _restricted_mip(lazy, columns, remaining(options, start), incumbent, pool, layers)
+        # the first MIP only looks for a good incumbent: it stops at the looser seed gap
+        gap = max(SEED_MIP_GAP, options.mip_rel_gap) if step == 1 else options.mip_rel_gap
+        step_options = replace(remaining(options, start), mip_rel_gap=gap)
+        result = _restricted_mip(lazy, columns, step_options, incumbent, pool, layers)
         if result.x is None:
             break  # time limit before a solution of this step: keep the last one
         incumbent = result.x
         outside = lp.bound + max(selection.min_outside, 0.0)
-        certified = result.status == "optimal" and outside >= result.bound
+        at_target = gap == options.mip_rel_gap  # a run at the seed gap proves only that gap
+        certified = result.status == "optimal" and at_target and outside >= result.bound
         bound = max(lp.bound, min(result.bound, outside))  # both are valid lower bounds
         best = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
         logger.info(
@@ -393,7 +450,9 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         if certified or result.status != "optimal":
             return best if certified else replace(best, status="feasible")
         grown = GROWTH * threshold if threshold > 0 else math.inf
-        threshold = min(grown, result.objective - lp.bound)  # > threshold: see the docstring
+        # > threshold after a run at the target gap (see the docstring); after the seed-gap run
+        # the same threshold may be enough, and the next run is at the target gap
+        threshold = max(threshold, min(grown, result.objective - lp.bound))
     if best is None:
         return replace(result, bound=lp.bound, gap=math.nan)
     return replace(best, status="feasible", message=f"not certified within {MAX_STEPS} steps")
@@ -416,7 +475,7 @@ def solve_column_generation(
     if not isinstance(lazy, LazyModel):
         raise TypeError("the colgen strategy needs a LazyModel (the full model is never built)")
     start = time.perf_counter()
-    seed = np.union1d(feature_seed(lazy), stay_seed(lazy))
+    seed = np.union1d(path_band_seed(lazy), stay_seed(lazy))
     try:
         lp = generate_columns(lazy, seed, options)
     except LpNotSolved as stopped:
