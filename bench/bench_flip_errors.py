@@ -1,0 +1,145 @@
+"""How much of a feature map's error is left-right flips: NN error, large errors, mirrored matches.
+
+    .venv/bin/python bench/bench_flip_errors.py --data ../shared/data/FAUST_r \
+        --shapes tr_reg_070..tr_reg_079 --wks \
+        --checkpoint wks_only=runs/a/best.pt --checkpoint wks_xyz=runs/b/best.pt \
+        --out bench/results/faust_val_flip_errors.json
+
+For every ordered pair of the chosen shapes, at full resolution, on evenly spaced
+reference points (``--points``) of the ground truth: the mean normalised geodesic error
+of the nearest-neighbour feature map (as in training validation), the fraction of points
+whose error exceeds 0.2 (``large``), and the fraction of points with such an error whose
+match lies near the mirror image of the true point (``mirrored``: within 0.1 sqrt(area)
+of the true point reflected in the plane through the shape's bounding-box centre normal
+to ``--mirror-axis``, and at most half as far from it as from the true point). The
+mirror test assumes consistently aligned shapes with a left-right symmetry plane
+(FAUST_r: x). Prints one line per feature kind and writes them all as JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from features.extractor import WKSExtractor
+from features.learned import load_network
+from features.wks import normalise_rows
+from spidermatch.datasets import open_dataset
+from train.config import DataConfig, TrainConfig
+from train.data import Validator, ValShape, prepare_val_shape, select_names
+
+LARGE_ERROR = 0.2
+MIRROR_RADIUS = 0.1
+
+
+def mirrored_matches(shape: ValShape, rows: np.ndarray, predicted: np.ndarray, axis: int) -> np.ndarray:
+    """Whether each predicted vertex lies near the mirror image of its true vertex, (K,) bool.
+
+    Parameters
+    ----------
+    shape : ValShape
+        The target shape (V vertices).
+    rows : np.ndarray, shape (K,)
+        Reference points evaluated (rows of ``shape.corr``).
+    predicted : np.ndarray, shape (K,)
+        Predicted target vertex of each reference point.
+    axis : int
+        Coordinate normal to the symmetry plane.
+    """
+    verts = shape.mesh.verts
+    true = verts[shape.corr[rows]]
+    centre = 0.5 * (verts[:, axis].min() + verts[:, axis].max())
+    mirror = true.copy()
+    mirror[:, axis] = 2 * centre - true[:, axis]
+    to_true = np.linalg.norm(verts[predicted] - true, axis=1)
+    to_mirror = np.linalg.norm(verts[predicted] - mirror, axis=1)
+    return (to_mirror < MIRROR_RADIUS * np.sqrt(shape.mesh.area)) & (to_mirror <= 0.5 * to_true)
+
+
+def flip_figures(validator: Validator, feats: list[np.ndarray], axis: int) -> dict[str, float]:
+    """NN error, large-error fraction and mirrored fraction over the validator's pairs.
+
+    Parameters
+    ----------
+    validator : Validator
+    feats : list of np.ndarray, each (V, C)
+        L2-normalised descriptors of ``validator.shapes``.
+    axis : int
+    """
+    errors, mirrored, pair_means = [], [], []
+    for i, j in validator.pairs:
+        source_refs = validator.shapes[i].corr[validator.rows]
+        predicted = np.argmax(feats[i][source_refs] @ feats[j].T, axis=1)
+        pair_errors = validator.pair_errors(feats, i, j)
+        errors.append(pair_errors)
+        pair_means.append(pair_errors.mean())
+        mirrored.append(mirrored_matches(validator.shapes[j], validator.rows, predicted, axis))
+    errors, mirrored = np.concatenate(errors), np.concatenate(mirrored)
+    large = errors > LARGE_ERROR
+    return {
+        "nn_error": round(float(np.mean(pair_means)), 4),
+        "large": round(float(large.mean()), 4),
+        "mirrored": round(float((large & mirrored).mean()), 4),
+        "error_of_the_rest": round(float(errors[~large].mean()), 4),
+    }
+
+
+def learned_features(path: str, dataset, names: list[str]) -> list[np.ndarray]:
+    """Descriptors of a checkpoint's network on the named shapes, L2-normalised rows."""
+    import torch
+
+    network, model_config, _ = load_network(path)
+    network.eval()
+    shapes = [prepare_val_shape(dataset.load(name), model_config, DataConfig()) for name in names]
+    with torch.no_grad():
+        return [normalise_rows(network(s.input.features, s.input.ops).double().numpy()) for s in shapes]
+
+
+def main(argv: list[str] | None = None) -> None:
+    formatter = argparse.RawDescriptionHelpFormatter
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=formatter)
+    parser.add_argument("--data", required=True, help="a dataset folder with off/ and corres/")
+    parser.add_argument("--shapes", required=True, help="names: 'first..last' or a comma-separated list")
+    parser.add_argument("--checkpoint", action="append", default=[], help="LABEL=PATH of a best.pt")
+    parser.add_argument("--wks", action="store_true", help="also evaluate WKS")
+    parser.add_argument("--points", type=int, default=1000, help="reference points per pair")
+    parser.add_argument("--mirror-axis", type=int, default=0, choices=(0, 1, 2))
+    parser.add_argument("--out", default="bench/results/flip_errors.json")
+    args = parser.parse_args(argv)
+    labelled = [item.partition("=") for item in args.checkpoint]
+    for label, sep, path in labelled:
+        if not sep or not Path(path).is_file():
+            parser.error(f"--checkpoint {label}{sep}{path}: expected LABEL=PATH of an existing file")
+    dataset = open_dataset(args.data)
+    spec = args.shapes if ".." in args.shapes else args.shapes.split(",")
+    try:
+        names = select_names(dataset.names, spec, "--shapes")
+    except ValueError as error:
+        parser.error(str(error))
+    model = TrainConfig().model
+    shapes = [prepare_val_shape(dataset.load(name), model, DataConfig()) for name in names]
+    pairs = list(itertools.permutations(range(len(shapes)), 2))
+    validator = Validator(shapes, args.points, True, pairs)
+    kinds = {}
+    if args.wks:
+        extractor = WKSExtractor()
+        kinds["wks"] = [extractor(shape.mesh) for shape in shapes]
+    for label, _, path in labelled:
+        kinds[label] = learned_features(path, dataset, names)
+    results = {}
+    for label, feats in kinds.items():
+        results[label] = flip_figures(validator, feats, args.mirror_axis)
+        print(label, json.dumps(results[label]), flush=True)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    record = {"argv": sys.argv, "pairs": len(pairs), "points": int(validator.rows.size), "results": results}
+    out.write_text(json.dumps(record, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
