@@ -13,7 +13,11 @@ match lies near the mirror image of the true point (``mirrored``: within 0.1 sqr
 of the true point reflected in the plane through the shape's bounding-box centre normal
 to ``--mirror-axis``, and at most half as far from it as from the true point). The
 mirror test assumes consistently aligned shapes with a left-right symmetry plane
-(FAUST_r: x). Prints one line per feature kind and writes them all as JSON.
+(FAUST_r: x). ``--leave-out NAME`` adds the same figures over the pairs without that shape.
+The JSON also records each shape's turn about the vertical axis relative to the first
+shape (degrees; the best rigid rotation between their ground-truth reference points),
+which tells whether the shapes share one orientation. Prints one line per feature kind
+and writes them all as JSON.
 """
 
 from __future__ import annotations
@@ -89,6 +93,23 @@ def flip_figures(validator: Validator, feats: list[np.ndarray], axis: int) -> di
     }
 
 
+def turn_about_vertical(reference: ValShape, shape: ValShape, axis: int = 1) -> float:
+    """Angle (degrees) of the best rigid rotation from ``reference`` to ``shape`` about ``axis``.
+
+    The rotation (Kabsch, no reflection) aligns the shapes' centred ground-truth reference
+    points; its component about ``axis`` is returned.
+    """
+    from scipy.spatial.transform import Rotation
+
+    a = reference.mesh.verts[reference.corr]
+    b = shape.mesh.verts[shape.corr]
+    a, b = a - a.mean(axis=0), b - b.mean(axis=0)
+    u, _, vt = np.linalg.svd(b.T @ a)
+    sign = np.sign(np.linalg.det(u @ vt))
+    rotation = u @ np.diag([1.0, 1.0, sign]) @ vt
+    return float(np.degrees(Rotation.from_matrix(rotation).as_rotvec()[axis]))
+
+
 def learned_features(path: str, dataset, names: list[str]) -> list[np.ndarray]:
     """Descriptors of a checkpoint's network on the named shapes, L2-normalised rows."""
     import torch
@@ -109,6 +130,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--wks", action="store_true", help="also evaluate WKS")
     parser.add_argument("--points", type=int, default=1000, help="reference points per pair")
     parser.add_argument("--mirror-axis", type=int, default=0, choices=(0, 1, 2))
+    parser.add_argument("--leave-out", action="append", default=[], help="a shape name (repeatable)")
     parser.add_argument("--out", default="bench/results/flip_errors.json")
     args = parser.parse_args(argv)
     labelled = [item.partition("=") for item in args.checkpoint]
@@ -131,13 +153,28 @@ def main(argv: list[str] | None = None) -> None:
         kinds["wks"] = [extractor(shape.mesh) for shape in shapes]
     for label, _, path in labelled:
         kinds[label] = learned_features(path, dataset, names)
+    unknown = [name for name in args.leave_out if name not in names]
+    if unknown:
+        parser.error(f"--leave-out {unknown[0]}: not among --shapes")
     results = {}
     for label, feats in kinds.items():
         results[label] = flip_figures(validator, feats, args.mirror_axis)
+        for name in args.leave_out:
+            validator.pairs = [(i, j) for i, j in pairs if name not in (names[i], names[j])]
+            results[label][f"without_{name}"] = flip_figures(validator, feats, args.mirror_axis)
+        validator.pairs = pairs
         print(label, json.dumps(results[label]), flush=True)
+    turns = {name: round(turn_about_vertical(shapes[0], shape), 1) for name, shape in zip(names, shapes)}
+    print("turn about the vertical axis (degrees):", json.dumps(turns))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    record = {"argv": sys.argv, "pairs": len(pairs), "points": int(validator.rows.size), "results": results}
+    record = {
+        "argv": sys.argv,
+        "pairs": len(pairs),
+        "points": int(validator.rows.size),
+        "turn_about_vertical_deg": turns,
+        "results": results,
+    }
     out.write_text(json.dumps(record, indent=2) + "\n")
 
 

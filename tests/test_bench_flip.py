@@ -7,9 +7,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
-from bench_flip_errors import mirrored_matches  # noqa: E402
+from bench_flip_errors import mirrored_matches, turn_about_vertical  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
 
 from spidermatch.mesh import Mesh  # noqa: E402
+from spidermatch.synthetic import make_creature  # noqa: E402
 from train.data import ValShape  # noqa: E402
 
 
@@ -37,3 +39,13 @@ def test_mirror_images_are_recognised_and_near_misses_are_not():
     shifted = np.where(column == 0, rows + 1, rows)  # one column off, not mirrored
     assert not mirrored_matches(shape, rows, shifted, axis=0)[column == 0].any()
     assert not mirrored_matches(shape, rows, mirror, axis=1)[off_centre & (rows // 5 != 1)].any()
+
+
+def test_turn_about_the_vertical_axis_is_measured():
+    creature = make_creature(n_verts=300, seed=2).mesh
+    turned_verts = creature.verts @ Rotation.from_euler("y", 100, degrees=True).as_matrix().T + 5.0
+    turned = Mesh(turned_verts, creature.faces, "turned")
+    corr = np.arange(creature.n_verts)
+    reference, shape = ValShape("a", creature, None, corr), ValShape("b", turned, None, corr)
+    assert abs(turn_about_vertical(reference, shape) - 100.0) < 1e-6
+    assert abs(turn_about_vertical(reference, reference)) < 1e-6
