@@ -16,8 +16,10 @@ mirror test assumes consistently aligned shapes with a left-right symmetry plane
 (FAUST_r: x). ``--leave-out NAME`` adds the same figures over the pairs without that shape.
 The JSON also records each shape's turn about the vertical axis relative to the first
 shape (degrees; the best rigid rotation between their ground-truth reference points),
-which tells whether the shapes share one orientation. Prints one line per feature kind
-and writes them all as JSON.
+which tells whether the shapes share one orientation. ``--orientation-search N`` presents
+each shape's coordinates (``wks_xyz``/``xyz`` inputs) in N turns about the vertical axis and
+keeps, without labels, the one with the lowest unsupervised loss against the first shape.
+Prints one line per feature kind and writes them all as JSON.
 """
 
 from __future__ import annotations
@@ -110,15 +112,50 @@ def turn_about_vertical(reference: ValShape, shape: ValShape, axis: int = 1) -> 
     return float(np.degrees(Rotation.from_matrix(rotation).as_rotvec()[axis]))
 
 
-def learned_features(path: str, dataset, names: list[str]) -> list[np.ndarray]:
-    """Descriptors of a checkpoint's network on the named shapes, L2-normalised rows."""
+def turned_input(features, degrees: float):
+    """Network input (V, C) with its last 3 (xyz) columns turned about the vertical (y) axis."""
     import torch
+
+    angle = np.radians(degrees)
+    cos, sin = float(np.cos(angle)), float(np.sin(angle))
+    rotation = torch.tensor([[cos, 0.0, sin], [0.0, 1.0, 0.0], [-sin, 0.0, cos]], dtype=features.dtype)
+    return torch.cat([features[:, :-3], features[:, -3:] @ rotation.T], dim=1)
+
+
+def learned_features(
+    path: str, dataset, names: list[str], turns: int = 0
+) -> tuple[list[np.ndarray], dict[str, float]]:
+    """Descriptors of a checkpoint's network on the named shapes, L2-normalised rows.
+
+    With ``turns`` > 0 and an input with coordinates (``wks_xyz``, ``xyz``), each shape but
+    the first is presented in ``turns`` orientations about the vertical axis and keeps the one
+    whose unsupervised loss (the checkpoint's settings) against the first shape is lowest: an
+    orientation search that reads no labels. Returns the descriptors and the chosen turns.
+    """
+    import torch
+
+    from features.fmap import fmap_terms
+    from features.learned import fmap_config_of, read_checkpoint
 
     network, model_config, _ = load_network(path)
     network.eval()
+    loss_config = fmap_config_of(read_checkpoint(path))
     shapes = [prepare_val_shape(dataset.load(name), model_config, DataConfig()) for name in names]
+    angles = [360.0 * k / turns for k in range(turns)] if turns and model_config.input != "wks" else [0.0]
+    feats, chosen = [], {}
     with torch.no_grad():
-        return [normalise_rows(network(s.input.features, s.input.ops).double().numpy()) for s in shapes]
+        reference = network(shapes[0].input.features, shapes[0].input.ops)
+        for index, shape in enumerate(shapes):
+            best = (np.inf, 0.0, reference)
+            for angle in angles if index else [0.0]:
+                out = network(turned_input(shape.input.features, angle), shape.input.ops)
+                terms = fmap_terms(reference, out, shapes[0].input.ops, shape.input.ops, loss_config)
+                loss = terms.weighted(loss_config).item() if index else 0.0
+                if loss < best[0]:
+                    best = (loss, angle, out)
+            chosen[shape.name] = best[1]
+            feats.append(normalise_rows(best[2].double().numpy()))
+    return feats, chosen
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -130,6 +167,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--wks", action="store_true", help="also evaluate WKS")
     parser.add_argument("--points", type=int, default=1000, help="reference points per pair")
     parser.add_argument("--mirror-axis", type=int, default=0, choices=(0, 1, 2))
+    parser.add_argument(
+        "--orientation-search", type=int, default=0, help="turns to try per shape (coordinate inputs)"
+    )
     parser.add_argument("--leave-out", action="append", default=[], help="a shape name (repeatable)")
     parser.add_argument("--out", default="bench/results/flip_errors.json")
     args = parser.parse_args(argv)
@@ -151,8 +191,9 @@ def main(argv: list[str] | None = None) -> None:
     if args.wks:
         extractor = WKSExtractor()
         kinds["wks"] = [extractor(shape.mesh) for shape in shapes]
+    chosen_turns = {}
     for label, _, path in labelled:
-        kinds[label] = learned_features(path, dataset, names)
+        kinds[label], chosen_turns[label] = learned_features(path, dataset, names, args.orientation_search)
     unknown = [name for name in args.leave_out if name not in names]
     if unknown:
         parser.error(f"--leave-out {unknown[0]}: not among --shapes")
@@ -173,6 +214,8 @@ def main(argv: list[str] | None = None) -> None:
         "pairs": len(pairs),
         "points": int(validator.rows.size),
         "turn_about_vertical_deg": turns,
+        "orientation_search_turns": args.orientation_search,
+        "chosen_input_turns_deg": chosen_turns,
         "results": results,
     }
     out.write_text(json.dumps(record, indent=2) + "\n")
