@@ -25,7 +25,8 @@ from spidermatch.operators import Operators, cached_operators
 
 logger = logging.getLogger(__name__)
 
-INPUT_KINDS = ("wks", "xyz")
+INPUT_KINDS = ("wks", "xyz", "wks_xyz")
+XYZ_CHANNELS = 3
 
 
 @dataclass
@@ -35,10 +36,13 @@ class ModelConfig:
     Attributes
     ----------
     input : str
-        ``"wks"`` (Wave Kernel Signature, invariant to rigid motion) or ``"xyz"``
-        (centred coordinates scaled to unit surface area).
+        ``"wks"`` (Wave Kernel Signature, invariant to rigid motion), ``"xyz"``
+        (centred coordinates scaled to unit surface area) or ``"wks_xyz"`` (both,
+        concatenated: WKS for the intrinsic shape, xyz to tell the left of
+        consistently aligned shapes from their right).
     in_channels : int
-        Input channels C_in (the WKS dimension; 3 for ``"xyz"``).
+        Input channels C_in (the WKS dimension; 3 for ``"xyz"``; the WKS dimension + 3
+        for ``"wks_xyz"``).
     out_channels : int
         Output descriptor dimension C_out.
     width : int
@@ -71,6 +75,8 @@ class ModelConfig:
             raise ValueError(f"model input must be one of {INPUT_KINDS}, got {self.input!r}")
         if self.input == "xyz" and self.in_channels != 3:
             raise ValueError(f"xyz input has 3 channels, but in_channels = {self.in_channels}")
+        if self.input == "wks_xyz" and self.in_channels <= XYZ_CHANNELS:
+            raise ValueError(f"wks_xyz input needs in_channels > 3 (WKS + xyz), got {self.in_channels}")
         for key in ("in_channels", "out_channels", "width", "n_blocks", "n_eig"):
             if getattr(self, key) < 1:
                 raise ValueError(f"model {key} must be positive, got {getattr(self, key)}")
@@ -198,16 +204,17 @@ def input_features(mesh: Mesh, ops: Operators, config: ModelConfig) -> np.ndarra
     -------
     np.ndarray, shape (V, C_in), float64
         WKS rows (L2-normalised; computed from the eigenvalues of the shape scaled to
-        unit area, so invariant to rigid motion and scale) or centred coordinates
-        divided by sqrt(area).
+        unit area, so invariant to rigid motion and scale), centred coordinates
+        divided by sqrt(area), or both side by side (xyz in the last 3 columns).
 
     """
-    if config.input == "wks":  # eigenvalues of the unit-area shape: invariant to scale
-        return wave_kernel_signature(
-            ops.evals[: config.n_eig] * mesh.area, ops.evecs[:, : config.n_eig], config.in_channels
-        )
-    centred = mesh.verts - mesh.verts.mean(axis=0)
-    return centred / np.sqrt(mesh.area)
+    centred = (mesh.verts - mesh.verts.mean(axis=0)) / np.sqrt(mesh.area)
+    if config.input == "xyz":
+        return centred
+    n_wks = config.in_channels - (XYZ_CHANNELS if config.input == "wks_xyz" else 0)
+    # eigenvalues of the unit-area shape: invariant to scale
+    wks = wave_kernel_signature(ops.evals[: config.n_eig] * mesh.area, ops.evecs[:, : config.n_eig], n_wks)
+    return wks if config.input == "wks" else np.concatenate([wks, centred], axis=1)
 
 
 def prepare_shape(

@@ -91,11 +91,32 @@ def test_operators_need_gradients(creature):
 
 
 @pytest.mark.parametrize(
-    "bad", [dict(input="normals"), dict(input="xyz", in_channels=16), dict(width=0), dict(dropout=1.0)]
+    "bad",
+    [
+        dict(input="normals"),
+        dict(input="xyz", in_channels=16),
+        dict(input="wks_xyz", in_channels=3),
+        dict(width=0),
+        dict(dropout=1.0),
+    ],
 )
 def test_model_config_rejects_bad_values(bad):
     with pytest.raises(ValueError):
         ModelConfig(**bad)
+
+
+def test_wks_xyz_input_is_wks_beside_coordinates(creature):
+    """wks_xyz = the WKS input of the same dimension, then the centred unit-area coordinates."""
+    both = prepare_shape(creature, ModelConfig(input="wks_xyz", in_channels=19, n_eig=30), use_cache=False)
+    wks = prepare_shape(creature, ModelConfig(input="wks", in_channels=16, n_eig=30), use_cache=False)
+    xyz = prepare_shape(creature, ModelConfig(input="xyz", in_channels=3, n_eig=30), use_cache=False)
+    assert both.features.shape == (creature.n_verts, 19)
+    assert torch.allclose(both.features[:, :16], wks.features)
+    assert torch.allclose(both.features[:, 16:], xyz.features)
+    mirrored = Mesh(creature.verts * np.array([-1.0, 1.0, 1.0]), creature.faces[:, ::-1], "mirrored")
+    flipped = prepare_shape(mirrored, ModelConfig(input="wks_xyz", in_channels=19, n_eig=30), use_cache=False)
+    assert torch.allclose(flipped.features[:, :16], both.features[:, :16], atol=1e-5)  # WKS: same
+    assert torch.allclose(flipped.features[:, 16], -both.features[:, 16], atol=1e-6)  # x tells sides
 
 
 def test_diffusion_keeps_constants_and_mass(creature):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from features.diffusion_net import ModelConfig
+from features.diffusion_net import ModelConfig, ShapeInput
 from features.learned import CheckpointError, load_network
 from train.config import DataConfig, OptimConfig, RunConfig, TrainConfig
 from train.data import (
@@ -276,7 +276,11 @@ def test_real_config_composes_and_runs(tmp_path):
     with initialize_config_module(config_module="conf", version_base="1.3"):
         cfg = compose(config_name="train", overrides=overrides)
         faust = compose(config_name="train", overrides=["train/experiment=faust_r", "data.root=/nowhere"])
-    faust_config = to_train_config(faust)
+        unsup = compose(config_name="train", overrides=["train/experiment=faust_r_unsup", "data.root=/x"])
+    faust_config, unsup_config = to_train_config(faust), to_train_config(unsup)
+    assert faust_config.model.input == "wks"
+    assert unsup_config.model.input == "wks_xyz" and unsup_config.model.in_channels == 131
+    assert unsup_config.loss.w_sup == 0.0
     assert faust_config.data.train == "tr_reg_000..tr_reg_069"
     assert faust_config.model.dropout == 0.5 and faust_config.data.val_points is None
     result = train(to_train_config(cfg), tmp_path)
@@ -294,6 +298,22 @@ def test_real_config_composes_and_runs(tmp_path):
         config = to_train_config(cfg)
         config.resume = str(tmp_path / "missing.pt")
         train(config, tmp_path)
+
+
+def test_rotation_augmentation_turns_only_the_coordinates():
+    from train.loop import network_input
+
+    features = torch.randn(40, 7)
+    shape = TrainShape("s", ShapeInput(features, None), None)
+    config = TrainConfig(
+        model=ModelConfig(input="wks_xyz", in_channels=7), data=DataConfig(augment_rotation="all")
+    )
+    turned = network_input(shape, config, torch.Generator().manual_seed(0))
+    assert torch.equal(turned[:, :4], features[:, :4])
+    assert not torch.allclose(turned[:, 4:], features[:, 4:])
+    assert torch.allclose(turned[:, 4:].norm(dim=1), features[:, 4:].norm(dim=1), atol=1e-5)
+    config.model = ModelConfig(input="wks", in_channels=7)
+    assert torch.equal(network_input(shape, config, torch.Generator().manual_seed(0)), features)
 
 
 def test_time_limit_stops_after_validating(tmp_path, shapes):

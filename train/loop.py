@@ -232,11 +232,15 @@ def random_rotation(mode: str, generator: torch.Generator) -> torch.Tensor:
 
 
 def network_input(shape: TrainShape, config: TrainConfig, generator: torch.Generator) -> torch.Tensor:
-    """Input features of a training shape, randomly rotated if ``data.augment_rotation`` asks (xyz only)."""
+    """Input features of a training shape, randomly rotated if ``data.augment_rotation`` asks.
+
+    Only coordinates rotate (the whole input for ``xyz``, its last 3 columns for ``wks_xyz``).
+    """
     features = shape.input.features
-    if config.data.augment_rotation == "none" or config.model.input != "xyz":
+    if config.data.augment_rotation == "none" or config.model.input == "wks":
         return features
-    return features @ random_rotation(config.data.augment_rotation, generator).T.to(features.dtype)
+    rotation = random_rotation(config.data.augment_rotation, generator).T.to(features.dtype)
+    return torch.cat([features[:, :-3], features[:, -3:] @ rotation], dim=1)
 
 
 def train_step(state: TrainingState, shapes: list[TrainShape], config: TrainConfig) -> float:
