@@ -15,7 +15,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from spidermatch.mesh import Mesh
 from spidermatch.remesh import Decimated
-from spidermatch.surface import closest_triangle_points, face_table
+from spidermatch.surface import closest_triangle_points, face_table, padded_rows
 
 
 def coarse_labels(full: Mesh, low: Decimated) -> np.ndarray:
@@ -48,15 +48,9 @@ def coarse_labels(full: Mesh, low: Decimated) -> np.ndarray:
 def vertex_rings(mesh: Mesh) -> np.ndarray:
     """Each vertex and its neighbours, shape (V, 1 + max degree), padded with the vertex itself."""
     edges = mesh.edges
-    both = np.concatenate([edges, edges[:, ::-1]])
-    order = np.argsort(both[:, 0], kind="stable")
-    first, second = both[order, 0], both[order, 1]
-    counts = np.bincount(first, minlength=mesh.n_verts)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    slot = np.arange(len(first)) - np.repeat(starts, counts)
-    table = np.repeat(np.arange(mesh.n_verts)[:, None], 1 + max(int(counts.max(initial=0)), 0), axis=1)
-    table[first, 1 + slot] = second
-    return table
+    neighbours = padded_rows(edges.reshape(-1), edges[:, ::-1].reshape(-1), mesh.n_verts)
+    own = np.arange(mesh.n_verts)[:, None]
+    return np.hstack([own, np.where(neighbours >= 0, neighbours, own)])
 
 
 def ring_faces(mesh: Mesh, vertices: np.ndarray) -> np.ndarray:
@@ -65,8 +59,12 @@ def ring_faces(mesh: Mesh, vertices: np.ndarray) -> np.ndarray:
     return around.reshape(len(vertices), -1)
 
 
-def project_onto_coarse(full: Mesh, low: Decimated, clip: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def project_onto_coarse(
+    full: Mesh, low: Decimated, clip: bool = True, labels: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Each full-resolution vertex's closest point on the low-resolution surface near its label.
+
+    ``labels`` (V_full,): :func:`coarse_labels` of ``full``, if the caller has them already.
 
     Returns
     -------
@@ -76,20 +74,16 @@ def project_onto_coarse(full: Mesh, low: Decimated, clip: bool = True) -> tuple[
         See :func:`spidermatch.surface.closest_triangle_points` for ``clip``.
 
     """
-    candidates = ring_faces(low.mesh, coarse_labels(full, low))
+    if labels is None:
+        labels = coarse_labels(full, low)
+    candidates = ring_faces(low.mesh, labels)
     mesh = low.mesh
     return closest_triangle_points(mesh.verts, mesh.faces, full.verts, clip=clip, candidates=candidates)
 
 
 def faces_by_label(full: Mesh, labels: np.ndarray, n_low: int) -> np.ndarray:
     """Full-resolution faces touching a vertex of each label, shape (n_low, C), padded with -1."""
-    corner_label = labels[full.faces]
-    rows = np.concatenate([corner_label[:, k] for k in range(3)])
-    faces = np.tile(np.arange(len(full.faces)), 3)
-    pairs = np.unique(np.stack([rows, faces], axis=1), axis=0)
-    counts = np.bincount(pairs[:, 0], minlength=n_low)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    slot = np.arange(len(pairs)) - np.repeat(starts, counts)
-    table = np.full((n_low, max(int(counts.max(initial=0)), 1)), -1, dtype=np.int64)
-    table[pairs[:, 0], slot] = pairs[:, 1]
-    return table
+    corner_label = labels[full.faces].T.reshape(-1)
+    corner_face = np.tile(np.arange(len(full.faces)), 3)
+    pairs = np.unique(np.stack([corner_label, corner_face], axis=1), axis=0)
+    return padded_rows(pairs[:, 0], pairs[:, 1], n_low)

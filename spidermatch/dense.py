@@ -244,10 +244,7 @@ def interpolated_points(
     # triangles of the three images' own surface patches are candidates, so a blend never
     # lands on another body part that happens to be near in space.
     target_labels = coarse_labels(target, low_y)
-    candidates = ring_faces(low_y.mesh, target_labels)
-    target_face, target_bary = closest_triangle_points(
-        low_y.mesh.verts, low_y.mesh.faces, target.verts, clip=False, candidates=candidates
-    )
+    target_face, target_bary = project_onto_coarse(target, low_y, clip=False, labels=target_labels)
     projected = surface_positions(low_y.mesh, target_face, target_bary)
     patches = faces_by_label(target, target_labels, low_y.mesh.n_verts)[images].reshape(len(images), -1)
     face, bary = closest_triangle_points(projected, target.faces, blended, candidates=patches)

@@ -100,8 +100,9 @@ def closest_triangle_points(
     if candidates is None:
         candidates = _candidate_faces(verts, faces, points, n_candidates)
     row, face = _distinct_pairs(candidates)
-    closest = _closest_points_blockwise(verts[faces[face]], points[row])
-    distance = np.linalg.norm(closest - points[row], axis=1)
+    paired = points[row]
+    closest = _closest_points_blockwise(verts[faces[face]], paired)
+    distance = np.linalg.norm(closest - paired, axis=1)
     # The nearest candidate of each point: sort by (point, distance), take each point's first.
     order = np.lexsort((distance, row))
     first = order[np.concatenate([[0], np.flatnonzero(np.diff(row[order])) + 1])]
@@ -160,14 +161,25 @@ def vertex_face_table(mesh: Mesh) -> np.ndarray:
 
 def face_table(faces: np.ndarray, n_verts: int) -> np.ndarray:
     """Faces (F, 3) around each of ``n_verts`` vertices, shape (V, max valence), padded with -1."""
-    corner_vertex = faces.reshape(-1)
-    corner_face = np.repeat(np.arange(len(faces)), 3)
-    order = np.argsort(corner_vertex, kind="stable")
-    counts = np.bincount(corner_vertex, minlength=n_verts)
+    return padded_rows(faces.reshape(-1), np.repeat(np.arange(len(faces)), 3), n_verts)
+
+
+def padded_rows(keys: np.ndarray, values: np.ndarray, n_rows: int, fill: int = -1) -> np.ndarray:
+    """Group ``values`` (M,) by ``keys`` (M,) in [0, n_rows): one row per key, in input order.
+
+    Returns
+    -------
+    np.ndarray, shape (n_rows, max group size (at least 1)), int64
+        Padded with ``fill``.
+
+    """
+    keys, values = np.asarray(keys, dtype=np.int64), np.asarray(values, dtype=np.int64)
+    order = np.argsort(keys, kind="stable")
+    counts = np.bincount(keys, minlength=n_rows)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    slot = np.arange(order.size) - np.repeat(starts, counts)
-    table = np.full((n_verts, max(int(counts.max()), 1)), -1, dtype=np.int64)
-    table[corner_vertex[order], slot] = corner_face[order]
+    slot = np.arange(len(keys)) - np.repeat(starts, counts)
+    table = np.full((n_rows, max(int(counts.max(initial=0)), 1)), fill, dtype=np.int64)
+    table[keys[order], slot] = values[order]
     return table
 
 
