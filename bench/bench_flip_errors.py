@@ -114,12 +114,9 @@ def turn_about_vertical(reference: ValShape, shape: ValShape, axis: int = 1) -> 
 
 def turned_input(features, degrees: float):
     """Network input (V, C) with its last 3 (xyz) columns turned about the vertical (y) axis."""
-    import torch
+    from train.loop import rotated_coordinates, turn_about_vertical
 
-    angle = np.radians(degrees)
-    cos, sin = float(np.cos(angle)), float(np.sin(angle))
-    rotation = torch.tensor([[cos, 0.0, sin], [0.0, 1.0, 0.0], [-sin, 0.0, cos]], dtype=features.dtype)
-    return torch.cat([features[:, :-3], features[:, -3:] @ rotation.T], dim=1)
+    return rotated_coordinates(features, turn_about_vertical(np.radians(degrees)))
 
 
 def learned_features(

@@ -216,9 +216,7 @@ def sample_pair(generator: torch.Generator, n: int) -> tuple[int, int]:
 def random_rotation(mode: str, generator: torch.Generator) -> torch.Tensor:
     """A random rotation (3, 3): about the y axis (``"y"``) or uniform over SO(3) (``"all"``)."""
     if mode == "y":
-        angle = 2 * math.pi * float(torch.rand(1, generator=generator))
-        cos, sin = math.cos(angle), math.sin(angle)
-        return torch.tensor([[cos, 0.0, sin], [0.0, 1.0, 0.0], [-sin, 0.0, cos]])
+        return turn_about_vertical(2 * math.pi * float(torch.rand(1, generator=generator)))
     w, x, y, z = torch.randn(4, generator=generator).tolist()
     norm = math.sqrt(w * w + x * x + y * y + z * z)
     w, x, y, z = w / norm, x / norm, y / norm, z / norm
@@ -231,6 +229,18 @@ def random_rotation(mode: str, generator: torch.Generator) -> torch.Tensor:
     )
 
 
+def turn_about_vertical(angle: float) -> torch.Tensor:
+    """The rotation (3, 3) by ``angle`` radians about the y (vertical) axis."""
+    cos, sin = math.cos(angle), math.sin(angle)
+    return torch.tensor([[cos, 0.0, sin], [0.0, 1.0, 0.0], [-sin, 0.0, cos]])
+
+
+def rotated_coordinates(features: torch.Tensor, rotation: torch.Tensor) -> torch.Tensor:
+    """Network input (V, C) whose last 3 (coordinate) columns are turned by ``rotation`` (3, 3)."""
+    rotation = rotation.to(features.dtype)
+    return torch.cat([features[:, :-3], features[:, -3:] @ rotation.T], dim=1)
+
+
 def network_input(shape: TrainShape, config: TrainConfig, generator: torch.Generator) -> torch.Tensor:
     """Input features of a training shape, randomly rotated if ``data.augment_rotation`` asks.
 
@@ -239,8 +249,7 @@ def network_input(shape: TrainShape, config: TrainConfig, generator: torch.Gener
     features = shape.input.features
     if config.data.augment_rotation == "none" or config.model.input == "wks":
         return features
-    rotation = random_rotation(config.data.augment_rotation, generator).T.to(features.dtype)
-    return torch.cat([features[:, :-3], features[:, -3:] @ rotation], dim=1)
+    return rotated_coordinates(features, random_rotation(config.data.augment_rotation, generator))
 
 
 def train_step(state: TrainingState, shapes: list[TrainShape], config: TrainConfig) -> float:
