@@ -49,29 +49,17 @@ class _Sweep:
         self.cross = cross[np.argsort(graph.block_dst[cross], kind="stable")]  # grouped by head
         heads = graph.block_dst[self.cross]
         self.cross_starts = np.searchsorted(heads, np.arange(n))
-        self.intra_src = graph.block_src[self.intra_entries]
-        self.intra_dst = graph.block_dst[self.intra_entries]
-        rows = np.concatenate([self.intra_src, np.full(n, n)])
-        cols = np.concatenate([self.intra_dst, np.arange(n)])
+        rows = np.concatenate([graph.block_src[self.intra_entries], np.full(n, n)])
+        cols = np.concatenate([graph.block_dst[self.intra_entries], np.arange(n)])
         pattern = sp.csr_matrix((np.arange(1.0, rows.size + 1), (rows, cols)), shape=(n + 1, n + 1))
         pattern.sort_indices()
         self.pattern, self.slot_of = pattern, pattern.data.astype(np.int64) - 1
-        target = lazy.target_verts
-        self.intra_len2 = ((target[self.intra_src] - target[self.intra_dst]) ** 2).sum(axis=1)
-        cross_src, cross_dst = graph.block_src[self.cross], heads
-        self.cross_src, self.cross_dst = cross_src, cross_dst
-        self.cross_len2 = ((target[cross_src] - target[cross_dst]) ** 2).sum(axis=1)
+        self.cross_src = graph.block_src[self.cross]
 
     def _layer_costs(self, layer: int) -> tuple[np.ndarray, np.ndarray]:
         """Costs of the layer's intra edges and of its crossing edges (grouped by head)."""
-        lazy, curve = self.lazy, self.lazy.curve
-        p = curve.vertices[layer]
-        q = curve.vertices[(layer + 1) % curve.length]
-        step2 = float(((lazy.source_verts[p] - lazy.source_verts[q]) ** 2).sum())
-        row_p, row_q = lazy.vertex_costs[p], lazy.vertex_costs[q]
-        intra = np.sqrt(self.intra_len2) * (row_p[self.intra_src] + row_p[self.intra_dst])
-        cross = np.sqrt(self.cross_len2 + step2) * (row_p[self.cross_src] + row_q[self.cross_dst])
-        return intra, cross
+        first = layer * self.lazy.graph.block_size
+        return self.lazy.costs(first + self.intra_entries), self.lazy.costs(first + self.cross)
 
     def _closure(self, entering: np.ndarray, intra_costs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cheapest cost of reaching each target vertex after entering and walking intra edges.
