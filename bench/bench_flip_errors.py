@@ -112,46 +112,30 @@ def turn_about_vertical(reference: ValShape, shape: ValShape, axis: int = 1) -> 
     return float(np.degrees(Rotation.from_matrix(rotation).as_rotvec()[axis]))
 
 
-def turned_input(features, degrees: float):
-    """Network input (V, C) with its last 3 (xyz) columns turned about the vertical (y) axis."""
-    from train.loop import rotated_coordinates, turn_about_vertical
-
-    return rotated_coordinates(features, turn_about_vertical(np.radians(degrees)))
-
-
 def learned_features(
     path: str, dataset, names: list[str], turns: int = 0
 ) -> tuple[list[np.ndarray], dict[str, float]]:
     """Descriptors of a checkpoint's network on the named shapes, L2-normalised rows.
 
-    With ``turns`` > 0 and an input with coordinates (``wks_xyz``, ``xyz``), each shape but
-    the first is presented in ``turns`` orientations about the vertical axis and keeps the one
-    whose unsupervised loss (the checkpoint's settings) against the first shape is lowest: an
-    orientation search that reads no labels. Returns the descriptors and the chosen turns.
+    With ``turns`` > 1 and an input with coordinates (``wks_xyz``, ``xyz``), every shape is
+    presented in ``turns`` orientations about the vertical axis and keeps the one whose
+    unsupervised loss (the checkpoint's settings) against the first shape is lowest: the
+    orientation search of :mod:`features.orientation`, with the first shape as reference.
+    Returns the descriptors and the chosen turns.
     """
-    import torch
-
-    from features.fmap import fmap_terms
     from features.learned import fmap_config_of, read_checkpoint
+    from features.orientation import OrientationSearch, searches_orientation
 
     network, model_config, _ = load_network(path)
     network.eval()
     loss_config = fmap_config_of(read_checkpoint(path))
     shapes = [prepare_val_shape(dataset.load(name), model_config, DataConfig()) for name in names]
-    angles = [360.0 * k / turns for k in range(turns)] if turns and model_config.input != "wks" else [0.0]
-    feats, chosen = [], {}
-    with torch.no_grad():
-        reference = network(shapes[0].input.features, shapes[0].input.ops)
-        for index, shape in enumerate(shapes):
-            best = (np.inf, 0.0, reference)
-            for angle in angles if index else [0.0]:
-                out = network(turned_input(shape.input.features, angle), shape.input.ops)
-                terms = fmap_terms(reference, out, shapes[0].input.ops, shape.input.ops, loss_config)
-                loss = terms.weighted(loss_config).item() if index else 0.0
-                if loss < best[0]:
-                    best = (loss, angle, out)
-            chosen[shape.name] = best[1]
-            feats.append(normalise_rows(best[2].double().numpy()))
+    search = OrientationSearch(shapes[0].input, turns, loss_config)
+    if not searches_orientation(model_config, turns):
+        search.turns = 1  # the shapes as they are
+    found = search.search(network, [shape.input for shape in shapes])
+    chosen = {shape.name: angle for shape, (angle, _) in zip(shapes, found)}
+    feats = [normalise_rows(out.double().numpy()) for _, out in found]
     return feats, chosen
 
 

@@ -20,6 +20,13 @@ import torch
 
 from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
 from features.fmap import FmapLossConfig, fmap_terms
+from features.orientation import (
+    COORDINATE_INPUTS,
+    OrientationSearch,
+    search_from_payload,
+    searches_orientation,
+    turned_input,
+)
 from features.wks import normalise_rows
 from spidermatch.mesh import Mesh
 
@@ -172,6 +179,11 @@ class LearnedExtractor:
         training resolution stored in the checkpoint; full resolution if none).
     use_cache : bool
         Use the on-disk operator cache.
+    orientation_turns : int, optional
+        For networks that read coordinates: present each mesh in this many turns about the
+        vertical axis and keep the one whose unsupervised loss against the checkpoint's
+        reference shape is lowest (:mod:`features.orientation`). None: the checkpoint's
+        setting; 0: off.
 
     """
 
@@ -185,6 +197,7 @@ class LearnedExtractor:
         adapt_lr: float = 1e-3,
         adapt_faces: int | None = None,
         use_cache: bool = True,
+        orientation_turns: int | None = None,
     ) -> None:
         self.checkpoint = str(checkpoint)
         self.network, self.config, stored = load_network(checkpoint)
@@ -203,6 +216,10 @@ class LearnedExtractor:
         self.adapt_faces = adapt_faces if adapt_faces is not None else data.get("target_faces")
         self.loss_config = fmap_config_of(stored)
         self.use_cache = use_cache
+        self.orientation = orientation_search_of(
+            stored, self.config, self.loss_config, orientation_turns, checkpoint
+        )
+        self.turns: dict[str, float] = {}
 
     def __call__(self, mesh: Mesh) -> np.ndarray:
         """Return descriptors of shape (V, C_out), rows L2-normalised, float64."""
@@ -227,7 +244,10 @@ class LearnedExtractor:
 
     def adapt(self, mesh_x: Mesh, mesh_y: Mesh) -> DiffusionNet:
         """A copy of the network fine-tuned for ``adapt_steps`` Adam steps on this pair."""
-        inputs = [self._adaptation_input(mesh) for mesh in (mesh_x, mesh_y)]
+        inputs = [
+            self._oriented(self.network, self._adaptation_input(mesh), mesh.name)[0]
+            for mesh in (mesh_x, mesh_y)
+        ]
         network = copy.deepcopy(self.network)
         network.train()
         optimiser = torch.optim.Adam(network.parameters(), lr=self.adapt_lr)
@@ -254,6 +274,48 @@ class LearnedExtractor:
 
     def _features(self, network: DiffusionNet, mesh: Mesh) -> np.ndarray:
         shape = prepare_shape(mesh, self.config, use_cache=self.use_cache)
-        with torch.no_grad():
-            features = network(shape.features, shape.ops)
+        _, features = self._oriented(network, shape, mesh.name)
         return normalise_rows(features.double().numpy())
+
+    def _oriented(
+        self, network: DiffusionNet, shape: ShapeInput, name: str
+    ) -> tuple[ShapeInput, torch.Tensor]:
+        """``shape`` in the turn the orientation search picks (as it is without one), and its output."""
+        if self.orientation is None:
+            with torch.no_grad():
+                return shape, network(shape.features, shape.ops)
+        [(degrees, features)] = self.orientation.search(network, [shape])
+        self.turns[name] = degrees
+        if degrees:
+            logger.info(
+                "%s: input turned %.0f degrees about the vertical axis (orientation search)", name, degrees
+            )
+        return turned_input(shape, degrees), features
+
+
+def orientation_search_of(
+    checkpoint: dict[str, Any],
+    model: ModelConfig,
+    loss: FmapLossConfig,
+    turns: int | None,
+    path: str | os.PathLike,
+) -> OrientationSearch | None:
+    """The orientation search a checkpoint asks for, with ``turns`` overriding its setting."""
+    payload = checkpoint.get("orientation")
+    if turns is not None and turns < 0:
+        raise ValueError(f"orientation_turns must be >= 0, got {turns}")
+    if payload is None:
+        if turns is None and model.input in COORDINATE_INPUTS:
+            logger.warning(
+                "%s: no orientation reference; shapes must share the training shapes' orientation", path
+            )
+        if turns and searches_orientation(model, turns):
+            raise CheckpointError(
+                f"{path}: the checkpoint has no orientation reference (written before the search existed, "
+                "or trained with data.orientation_turns=0); retrain it or set orientation_turns=0"
+            )
+        return None
+    try:
+        return search_from_payload(payload, model, loss, turns)
+    except (KeyError, TypeError, ValueError, AttributeError) as error:
+        raise CheckpointError(f"{path}: unreadable orientation reference ({error})") from error

@@ -17,7 +17,7 @@ from train.losses import LossConfig
 # validation and logging cadence, threads) and ``resume`` may change.
 COMPATIBLE_SECTIONS = ("seed", "model", "loss", "optim", "data")
 # Keys of ``data`` that may change on resume (where the files are, cache use).
-RELOCATABLE_DATA_KEYS = ("root", "use_cache")
+RELOCATABLE_DATA_KEYS = ("root", "use_cache", "orientation_turns")
 VAL_PAIR_MODES = ("all", "class")
 ROTATION_MODES = ("none", "y", "all")
 SCHEDULES = ("step", "cosine")
@@ -57,6 +57,11 @@ class DataConfig:
         truth; None uses all).
     use_cache : bool
         Use the on-disk operator cache.
+    orientation_turns : int
+        For networks that read coordinates (``xyz``, ``wks_xyz``): validation and inference
+        present each shape in this many turns about the vertical axis and keep the one whose
+        unsupervised loss against the first training shape is lowest (no labels; see
+        :mod:`features.orientation`). 0 turns the search off; WKS inputs ignore it.
     """
 
     root: str | None = None
@@ -70,8 +75,11 @@ class DataConfig:
     synthetic_verts: int = 2000
     val_points: int | None = 500
     use_cache: bool = True
+    orientation_turns: int = 0
 
     def __post_init__(self) -> None:
+        if self.orientation_turns < 0:
+            raise ValueError(f"data.orientation_turns must be >= 0, got {self.orientation_turns}")
         if self.val_pairs not in VAL_PAIR_MODES:
             raise ValueError(f"data.val_pairs must be one of {VAL_PAIR_MODES}, got {self.val_pairs!r}")
         if self.augment_rotation not in ROTATION_MODES:

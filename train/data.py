@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 from tqdm.auto import tqdm
 
 from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
+from features.orientation import OrientationSearch
 from features.wks import normalise_rows
 from spidermatch.datasets import Shape, ShapeFolder, SyntheticShapes, open_dataset
 from spidermatch.geodesics import GeodesicDistances
@@ -40,11 +41,14 @@ class TrainShape:
         Features (V_low, C_in) and operators.
     corr : torch.Tensor, shape (N,), int64, or None
         Training-resolution vertex nearest to each reference point.
+    mesh : Mesh, optional
+        The mesh at training resolution (V_low vertices).
     """
 
     name: str
     input: ShapeInput
     corr: torch.Tensor | None
+    mesh: Mesh | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -204,7 +208,7 @@ def prepare_train_shape(shape: Shape, model: ModelConfig, config: DataConfig) ->
         mesh = low
     elif shape.corr is not None:
         corr = torch.from_numpy(np.asarray(shape.corr, dtype=np.int64))
-    return TrainShape(shape.name, prepare_shape(mesh, model, use_cache=config.use_cache), corr)
+    return TrainShape(shape.name, prepare_shape(mesh, model, use_cache=config.use_cache), corr, mesh)
 
 
 def prepare_val_shape(shape: Shape, model: ModelConfig, config: DataConfig) -> ValShape:
@@ -229,6 +233,19 @@ def prepare_shapes(
     ]
 
 
+def network_outputs(
+    network: DiffusionNet, shapes: Sequence, orientation: OrientationSearch | None
+) -> list[torch.Tensor]:
+    """The network's output (V, C_out) on every shape's ``input``, without gradients.
+
+    With an orientation search, each shape is presented in the turn the search chooses.
+    """
+    if orientation is not None:
+        return [feats for _, feats in orientation.search(network, [shape.input for shape in shapes])]
+    with torch.no_grad():
+        return [network(shape.input.features, shape.input.ops) for shape in shapes]
+
+
 class Validator:
     """Mean geodesic error of the nearest-neighbour feature map on validation pairs.
 
@@ -246,6 +263,8 @@ class Validator:
         Show a progress bar while the distance tables are computed.
     pairs : list of (int, int), optional
         Ordered pairs of indices into ``shapes`` (default: every ordered pair).
+    orientation : OrientationSearch, optional
+        Present every shape in the turn the search chooses (None: as it is).
     """
 
     def __init__(
@@ -254,6 +273,7 @@ class Validator:
         val_points: int | None = None,
         progress: bool = False,
         pairs: list[tuple[int, int]] | None = None,
+        orientation: OrientationSearch | None = None,
     ) -> None:
         n_refs = min(len(shape.corr) for shape in shapes)
         if any(len(shape.corr) != n_refs for shape in shapes):
@@ -265,6 +285,7 @@ class Validator:
         self.pairs = list(itertools.permutations(range(len(shapes)), 2)) if pairs is None else list(pairs)
         self._tables: list[np.ndarray] | None = None
         self.progress = progress
+        self.orientation = orientation
 
     def distance_tables(self) -> list[np.ndarray]:
         """Per shape, normalised geodesic distances from its reference vertices, (K, V) float32."""
@@ -284,10 +305,10 @@ class Validator:
         """L2-normalised descriptors of every validation shape, each (V, C_out)."""
         was_training = network.training
         network.eval()
-        with torch.no_grad():
-            out = [
-                normalise_rows(network(s.input.features, s.input.ops).double().numpy()) for s in self.shapes
-            ]
+        out = [
+            normalise_rows(feats.double().numpy())
+            for feats in network_outputs(network, self.shapes, self.orientation)
+        ]
         network.train(was_training)
         return out
 

@@ -35,6 +35,12 @@ from tqdm.auto import tqdm
 
 from features.diffusion_net import DiffusionNet
 from features.learned import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, CheckpointError, read_checkpoint
+from features.orientation import (
+    reference_payload,
+    rotated_coordinates,
+    searches_orientation,
+    turn_about_vertical,
+)
 from spidermatch.datasets import DatasetError
 from train.config import TrainConfig, incompatibilities
 from train.data import (
@@ -66,6 +72,7 @@ class TrainingState:
     history: list[dict[str, float]] = field(default_factory=list)
     last_loss: float = math.nan
     last_terms: dict[str, float] = field(default_factory=dict)
+    orientation: dict[str, Any] | None = None
 
 
 @dataclass
@@ -154,6 +161,7 @@ def checkpoint_dict(state: TrainingState, config: TrainConfig) -> dict[str, Any]
         "scheduler": state.scheduler.state_dict(),
         "rng": {"torch": torch.get_rng_state(), "pairs": state.generator.get_state()},
         "metrics": {"best_val": state.best_val, "history": list(state.history), "last_loss": state.last_loss},
+        "orientation": state.orientation,
     }
 
 
@@ -227,18 +235,6 @@ def random_rotation(mode: str, generator: torch.Generator) -> torch.Tensor:
             [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
         ]
     )
-
-
-def turn_about_vertical(angle: float) -> torch.Tensor:
-    """The rotation (3, 3) by ``angle`` radians about the y (vertical) axis."""
-    cos, sin = math.cos(angle), math.sin(angle)
-    return torch.tensor([[cos, 0.0, sin], [0.0, 1.0, 0.0], [-sin, 0.0, cos]])
-
-
-def rotated_coordinates(features: torch.Tensor, rotation: torch.Tensor) -> torch.Tensor:
-    """Network input (V, C) whose last 3 (coordinate) columns are turned by ``rotation`` (3, 3)."""
-    rotation = rotation.to(features.dtype)
-    return torch.cat([features[:, :-3], features[:, -3:] @ rotation.T], dim=1)
 
 
 def network_input(shape: TrainShape, config: TrainConfig, generator: torch.Generator) -> torch.Tensor:
@@ -367,6 +363,7 @@ def run_training(
         raise ValueError(f"training needs at least 2 shapes, got {len(shapes)}")
     out_dir, run = Path(out_dir), config.run
     state = new_state(config)
+    state.orientation = orientation_reference(shapes[0], config)
     if config.resume is not None:
         load_checkpoint_into(config.resume, state, config)
         _carry_best(Path(config.resume), out_dir)
@@ -405,6 +402,13 @@ def run_training(
         logger.warning("stopped at step %d; continue with resume=%s", state.step, out_dir / "last.pt")
     criterion = validation.criterion if validation is not None else "val_error"
     return TrainResult(state.step, losses, state.best_val, last_val, stop[0], criterion)
+
+
+def orientation_reference(shape: TrainShape, config: TrainConfig) -> dict[str, Any] | None:
+    """The orientation search's checkpoint entry (the first training shape), or None when off."""
+    if shape.mesh is None or not searches_orientation(config.model, config.data.orientation_turns):
+        return None
+    return reference_payload(shape.mesh, config.data.orientation_turns)
 
 
 def progress_fields(

@@ -23,7 +23,8 @@ import torch
 
 from features.diffusion_net import DiffusionNet
 from features.fmap import FmapLossConfig, fmap_terms
-from train.data import TrainShape, Validator
+from features.orientation import OrientationSearch, searches_orientation
+from train.data import TrainShape, Validator, network_outputs
 
 logger = logging.getLogger(__name__)
 
@@ -49,20 +50,29 @@ class LossValidator:
         Ordered pairs of indices into ``shapes``.
     loss : FmapLossConfig
         The training loss settings (its supervised weight, if any, is ignored).
+    orientation : OrientationSearch, optional
+        Present every shape in the turn the search chooses (None: as it is).
     """
 
-    def __init__(self, shapes: list[TrainShape], pairs: list[tuple[int, int]], loss: FmapLossConfig) -> None:
+    def __init__(
+        self,
+        shapes: list[TrainShape],
+        pairs: list[tuple[int, int]],
+        loss: FmapLossConfig,
+        orientation: OrientationSearch | None = None,
+    ) -> None:
         if not pairs:
             raise ValueError("LossValidator needs at least one pair")
         self.shapes, self.pairs, self.loss = shapes, list(pairs), loss
+        self.orientation = orientation
 
     def __call__(self, network: DiffusionNet) -> dict[str, float]:
         """``{"val_unsup": mean weighted loss, "val_bij": ..., "val_orth": ..., "val_couple": ...}``."""
         was_training = network.training
         network.eval()
         sums = dict.fromkeys(("val_unsup", *(f"val_{t}" for t in TERMS)), 0.0)
+        feats = network_outputs(network, self.shapes, self.orientation)
         with torch.no_grad():
-            feats = [network(s.input.features, s.input.ops) for s in self.shapes]
             for i, j in self.pairs:
                 x, y = self.shapes[i], self.shapes[j]
                 terms = fmap_terms(feats[i], feats[j], x.input.ops, y.input.ops, self.loss)
@@ -104,7 +114,12 @@ class Validation:
 
 
 def label_free_validator(
-    dataset, pairs: list[tuple[str, str]], known: dict[str, TrainShape], model, config
+    dataset,
+    pairs: list[tuple[str, str]],
+    known: dict[str, TrainShape],
+    model,
+    config,
+    orientation: OrientationSearch | None = None,
 ) -> LossValidator:
     """LossValidator on at most ``data.label_free_pairs`` of ``pairs``, at training resolution.
 
@@ -119,10 +134,12 @@ def label_free_validator(
         for name in names
     ]
     index = {name: i for i, name in enumerate(names)}
-    return LossValidator(shapes, [(index[a], index[b]) for a, b in chosen], config.loss)
+    return LossValidator(shapes, [(index[a], index[b]) for a, b in chosen], config.loss, orientation)
 
 
-def labelled_validator(dataset, pairs: list[tuple[str, str]], config) -> Validator | None:
+def labelled_validator(
+    dataset, pairs: list[tuple[str, str]], config, orientation: OrientationSearch | None = None
+) -> Validator | None:
     """Validator at full resolution on ``pairs``, or None if a shape has no ground truth."""
     from tqdm.auto import tqdm
 
@@ -138,7 +155,7 @@ def labelled_validator(dataset, pairs: list[tuple[str, str]], config) -> Validat
     shapes = [prepare_val_shape(shape, config.model, config.data) for shape in bar]
     index = {name: i for i, name in enumerate(names)}
     pair_indices = [(index[a], index[b]) for a, b in pairs]
-    return Validator(shapes, config.data.val_points, config.run.progress, pair_indices)
+    return Validator(shapes, config.data.val_points, config.run.progress, pair_indices, orientation)
 
 
 def prepare_validation(
@@ -156,8 +173,16 @@ def prepare_validation(
     config : TrainConfig
     """
     known = {shape.name: shape for shape in train_shapes}
-    label_free = label_free_validator(dataset, pairs, known, config.model, config)
-    labelled = labelled_validator(dataset, pairs, config)
+    orientation = None
+    if searches_orientation(config.model, config.data.orientation_turns):
+        orientation = OrientationSearch(train_shapes[0].input, config.data.orientation_turns, config.loss)
+        logger.info(
+            "validation: orientation search over %d turns against %s",
+            config.data.orientation_turns,
+            train_shapes[0].name,
+        )
+    label_free = label_free_validator(dataset, pairs, known, config.model, config, orientation)
+    labelled = labelled_validator(dataset, pairs, config, orientation)
     wks = labelled.wks_error(config.data.use_cache) if labelled is not None else math.nan
     if labelled is not None:
         logger.info("validation: %d labelled pairs; WKS scores %.4f on them", len(labelled.pairs), wks)

@@ -1,0 +1,108 @@
+"""The label-free orientation search: turned shapes are turned back, in validation and inference."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from features.diffusion_net import DiffusionNet, ModelConfig, prepare_shape
+from features.learned import CheckpointError, LearnedExtractor, read_checkpoint
+from features.orientation import OrientationSearch, reference_payload, turn_about_vertical
+from spidermatch.mesh import Mesh
+from spidermatch.synthetic import make_creature
+from train.losses import LossConfig
+
+XYZ = ModelConfig(input="wks_xyz", in_channels=19, out_channels=8, width=16, n_blocks=2, n_eig=30)
+
+pytestmark = pytest.mark.usefixtures("isolated_torch")
+
+
+@pytest.fixture(scope="module")
+def creature() -> Mesh:
+    return make_creature(n_verts=300, seed=3).mesh
+
+
+def turned_mesh(mesh: Mesh, degrees: float) -> Mesh:
+    """``mesh`` turned by ``degrees`` about the vertical (y) axis, and moved."""
+    rotation = turn_about_vertical(math.radians(degrees)).double().numpy()
+    return Mesh(mesh.verts @ rotation.T + np.array([0.5, 0.0, -1.0]), mesh.faces, "turned")
+
+
+def network(seed: int = 0) -> DiffusionNet:
+    torch.manual_seed(seed)
+    net = DiffusionNet.from_config(XYZ)
+    with torch.no_grad():
+        for block in net.blocks:
+            block.diffusion.diffusion_time.uniform_(1e-4, 1e-2)
+    return net.eval()
+
+
+def test_search_turns_a_turned_shape_back(creature):
+    reference = prepare_shape(creature, XYZ, use_cache=False)
+    search = OrientationSearch(reference, 4, LossConfig(n_fmap=20))
+    net = network()
+    shapes = [reference, prepare_shape(turned_mesh(creature, 90.0), XYZ, use_cache=False)]
+    (angle_same, out_same), (angle_turned, out_turned) = search.search(net, shapes)
+    with torch.no_grad():
+        expected = net(reference.features, reference.ops)
+    assert angle_same == 0.0 and angle_turned == 270.0
+    assert torch.allclose(out_same, expected, atol=1e-5)
+    assert torch.allclose(out_turned, expected, atol=1e-3)  # the turned shape, turned back
+
+
+def _checkpoint_with_reference(path, reference: Mesh | None, turns: int = 4):
+    from train.config import TrainConfig
+    from train.loop import new_state, save_checkpoint
+
+    config = TrainConfig(model=XYZ, loss=LossConfig(n_fmap=20))
+    state = new_state(config)
+    with torch.no_grad():
+        for block in state.network.blocks:
+            block.diffusion.diffusion_time.uniform_(1e-4, 1e-2)
+    state.average = None
+    if reference is not None:
+        state.orientation = reference_payload(reference, turns)
+    save_checkpoint(path, state, config)
+
+
+def test_extractor_turns_a_turned_mesh_back(tmp_path, creature):
+    _checkpoint_with_reference(tmp_path / "a.pt", creature)
+    extractor = LearnedExtractor(str(tmp_path / "a.pt"), use_cache=False)
+    as_is = extractor(creature)
+    turned = extractor(turned_mesh(creature, 90.0))
+    assert extractor.turns == {creature.name: 0.0, "turned": 270.0}
+    assert np.abs(turned - as_is).max() < 1e-3
+    without = LearnedExtractor(str(tmp_path / "a.pt"), use_cache=False, orientation_turns=0)
+    assert np.abs(without(turned_mesh(creature, 90.0)) - as_is).max() > 0.05
+    assert np.abs(without(creature) - as_is).max() < 1e-6
+
+
+def test_extractor_needs_a_reference_to_search(tmp_path, creature):
+    _checkpoint_with_reference(tmp_path / "old.pt", None)
+    assert LearnedExtractor(str(tmp_path / "old.pt"), use_cache=False).orientation is None
+    with pytest.raises(CheckpointError, match="old.pt: the checkpoint has no orientation reference"):
+        LearnedExtractor(str(tmp_path / "old.pt"), orientation_turns=8)
+
+
+def test_training_stores_the_reference_and_validates_with_the_search(tmp_path):
+    from train.config import DataConfig, RunConfig, TrainConfig
+    from train.loop import train
+
+    config = TrainConfig(
+        seed=1,
+        model=XYZ,
+        loss=LossConfig(n_fmap=20),
+        data=DataConfig(
+            synthetic_shapes=4, synthetic_verts=250, val_points=30, use_cache=False, orientation_turns=4
+        ),
+        run=RunConfig(n_steps=2, val_every=1, progress=False),
+    )
+    result = train(config, tmp_path)
+    stored = read_checkpoint(tmp_path / "last.pt")["orientation"]
+    assert result.step == 2 and 0 <= result.best_val < 1
+    assert stored["turns"] == 4 and stored["name"] == "creature_000"
+    assert stored["verts"].shape[1] == 3 and stored["faces"].shape[1] == 3
+    assert LearnedExtractor(str(tmp_path / "best.pt"), use_cache=False).orientation.turns == 4
