@@ -23,6 +23,7 @@ from features.fmap import FmapLossConfig, fmap_terms
 from features.orientation import (
     COORDINATE_INPUTS,
     OrientationSearch,
+    probe_input,
     search_from_payload,
     searches_orientation,
     turned_input,
@@ -213,7 +214,8 @@ class LearnedExtractor:
         self.adapt_steps = adapt_steps
         self.adapt_lr = adapt_lr
         data = stored["config"].get("data") or {}
-        self.adapt_faces = adapt_faces if adapt_faces is not None else data.get("target_faces")
+        self.train_faces = data.get("target_faces")
+        self.adapt_faces = adapt_faces if adapt_faces is not None else self.train_faces
         self.loss_config = fmap_config_of(stored)
         self.use_cache = use_cache
         self.orientation = orientation_search_of(
@@ -244,9 +246,9 @@ class LearnedExtractor:
 
     def adapt(self, mesh_x: Mesh, mesh_y: Mesh) -> DiffusionNet:
         """A copy of the network fine-tuned for ``adapt_steps`` Adam steps on this pair."""
+        inputs = [self._adaptation_input(mesh) for mesh in (mesh_x, mesh_y)]
         inputs = [
-            self._oriented(self.network, self._adaptation_input(mesh), mesh.name)[0]
-            for mesh in (mesh_x, mesh_y)
+            self._oriented(self.network, item, mesh, item)[0] for item, mesh in zip(inputs, (mesh_x, mesh_y))
         ]
         network = copy.deepcopy(self.network)
         network.train()
@@ -266,29 +268,33 @@ class LearnedExtractor:
         return network
 
     def _adaptation_input(self, mesh: Mesh) -> ShapeInput:
-        if self.adapt_faces is not None and mesh.n_faces > self.adapt_faces:
-            from spidermatch.remesh import decimate
-
-            mesh = decimate(mesh, int(self.adapt_faces)).mesh
-        return prepare_shape(mesh, self.config, use_cache=self.use_cache)
+        return probe_input(mesh, self.config, self.adapt_faces, self.use_cache)
 
     def _features(self, network: DiffusionNet, mesh: Mesh) -> np.ndarray:
         shape = prepare_shape(mesh, self.config, use_cache=self.use_cache)
-        _, features = self._oriented(network, shape, mesh.name)
+        _, features = self._oriented(network, shape, mesh)
         return normalise_rows(features.double().numpy())
 
     def _oriented(
-        self, network: DiffusionNet, shape: ShapeInput, name: str
+        self, network: DiffusionNet, shape: ShapeInput, mesh: Mesh, probe: ShapeInput | None = None
     ) -> tuple[ShapeInput, torch.Tensor]:
-        """``shape`` in the turn the orientation search picks (as it is without one), and its output."""
+        """``shape`` of ``mesh`` in the turn the orientation search picks, and its output.
+
+        The turn is chosen on ``probe`` (default: ``mesh`` at the training resolution); without
+        a search, ``shape`` is returned as it is.
+        """
         if self.orientation is None:
             with torch.no_grad():
                 return shape, network(shape.features, shape.ops)
-        [(degrees, features)] = self.orientation.search(network, [shape])
-        self.turns[name] = degrees
+        if probe is None:
+            probe = probe_input(mesh, self.config, self.train_faces, self.use_cache)
+        [(degrees, features)] = self.orientation.search(network, [shape], [probe])
+        self.turns[mesh.name] = degrees
         if degrees:
             logger.info(
-                "%s: input turned %.0f degrees about the vertical axis (orientation search)", name, degrees
+                "%s: input turned %.0f degrees about the vertical axis (orientation search)",
+                mesh.name,
+                degrees,
             )
         return turned_input(shape, degrees), features
 

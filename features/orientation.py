@@ -74,14 +74,31 @@ class OrientationSearch:
         """The turns tried, in degrees, starting with 0."""
         return [360.0 * k / self.turns for k in range(self.turns)]
 
-    def search(self, network: DiffusionNet, shapes: list[ShapeInput]) -> list[tuple[float, torch.Tensor]]:
+    def search(
+        self, network: DiffusionNet, shapes: list[ShapeInput], probes: list[ShapeInput] | None = None
+    ) -> list[tuple[float, torch.Tensor]]:
         """Best turn (degrees) and the network output (V, C_out) in it, for every shape.
 
-        The network is run without gradients in whatever mode it is in.
+        Parameters
+        ----------
+        network : DiffusionNet
+            Run without gradients in whatever mode it is in.
+        shapes : list of ShapeInput
+        probes : list of ShapeInput, optional
+            The same shapes at the resolution the network was trained at (see
+            :func:`probe_input`), one per shape: the turns are chosen on them, which is
+            both faster and more reliable than at a finer resolution. None: on ``shapes``.
         """
         with torch.no_grad():
             reference = network(self.reference.features, self.reference.ops)
-            return [self._best_turn(network, reference, shape) for shape in shapes]
+            if probes is None:
+                return [self._best_turn(network, reference, shape) for shape in shapes]
+            found = []
+            for shape, probe in zip(shapes, probes, strict=True):
+                angle = self._best_turn(network, reference, probe)[0]
+                turned = turned_input(shape, angle)
+                found.append((angle, network(turned.features, turned.ops)))
+            return found
 
     def _best_turn(
         self, network: DiffusionNet, reference: torch.Tensor, shape: ShapeInput
@@ -94,6 +111,15 @@ class OrientationSearch:
             if loss < best[0]:
                 best = (loss, angle, out)
         return best[1], best[2]
+
+
+def probe_input(mesh: Mesh, model: ModelConfig, faces: int | None, use_cache: bool = True) -> ShapeInput:
+    """Network input of ``mesh`` decimated to about ``faces`` faces (as it is if it has fewer or None)."""
+    if faces is not None and mesh.n_faces > faces:
+        from spidermatch.remesh import decimate
+
+        mesh = decimate(mesh, int(faces)).mesh
+    return prepare_shape(mesh, model, use_cache=use_cache)
 
 
 def searches_orientation(model: ModelConfig, turns: int) -> bool:

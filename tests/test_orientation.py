@@ -12,6 +12,7 @@ from features.diffusion_net import DiffusionNet, ModelConfig, prepare_shape
 from features.learned import CheckpointError, LearnedExtractor, read_checkpoint
 from features.orientation import OrientationSearch, reference_payload, turn_about_vertical
 from spidermatch.mesh import Mesh
+from spidermatch.remesh import decimate
 from spidermatch.synthetic import make_creature
 from train.losses import LossConfig
 
@@ -53,11 +54,11 @@ def test_search_turns_a_turned_shape_back(creature):
     assert torch.allclose(out_turned, expected, atol=1e-3)  # the turned shape, turned back
 
 
-def _checkpoint_with_reference(path, reference: Mesh | None, turns: int = 4):
-    from train.config import TrainConfig
+def _checkpoint_with_reference(path, reference: Mesh | None, turns: int = 4, train_faces: int | None = None):
+    from train.config import DataConfig, TrainConfig
     from train.loop import new_state, save_checkpoint
 
-    config = TrainConfig(model=XYZ, loss=LossConfig(n_fmap=20))
+    config = TrainConfig(model=XYZ, loss=LossConfig(n_fmap=20), data=DataConfig(target_faces=train_faces))
     state = new_state(config)
     with torch.no_grad():
         for block in state.network.blocks:
@@ -68,8 +69,12 @@ def _checkpoint_with_reference(path, reference: Mesh | None, turns: int = 4):
     save_checkpoint(path, state, config)
 
 
-def test_extractor_turns_a_turned_mesh_back(tmp_path, creature):
-    _checkpoint_with_reference(tmp_path / "a.pt", creature)
+@pytest.mark.parametrize("train_faces", [None, 300])  # search at full resolution / on a coarser probe
+def test_extractor_turns_a_turned_mesh_back(tmp_path, creature, train_faces):
+    reference = (
+        creature if train_faces is None else decimate(creature, train_faces).mesh
+    )  # as training stores it
+    _checkpoint_with_reference(tmp_path / "a.pt", reference, train_faces=train_faces)
     extractor = LearnedExtractor(str(tmp_path / "a.pt"), use_cache=False)
     as_is = extractor(creature)
     turned = extractor(turned_mesh(creature, 90.0))

@@ -234,14 +234,19 @@ def prepare_shapes(
 
 
 def network_outputs(
-    network: DiffusionNet, shapes: Sequence, orientation: OrientationSearch | None
+    network: DiffusionNet,
+    shapes: Sequence,
+    orientation: OrientationSearch | None,
+    probes: list[ShapeInput] | None = None,
 ) -> list[torch.Tensor]:
     """The network's output (V, C_out) on every shape's ``input``, without gradients.
 
-    With an orientation search, each shape is presented in the turn the search chooses.
+    With an orientation search, each shape is presented in the turn the search chooses
+    (on ``probes``, the shapes at training resolution, when given).
     """
     if orientation is not None:
-        return [feats for _, feats in orientation.search(network, [shape.input for shape in shapes])]
+        found = orientation.search(network, [shape.input for shape in shapes], probes)
+        return [feats for _, feats in found]
     with torch.no_grad():
         return [network(shape.input.features, shape.input.ops) for shape in shapes]
 
@@ -265,6 +270,8 @@ class Validator:
         Ordered pairs of indices into ``shapes`` (default: every ordered pair).
     orientation : OrientationSearch, optional
         Present every shape in the turn the search chooses (None: as it is).
+    probes : list of ShapeInput, optional
+        The shapes at training resolution, on which the search chooses the turns.
     """
 
     def __init__(
@@ -274,6 +281,7 @@ class Validator:
         progress: bool = False,
         pairs: list[tuple[int, int]] | None = None,
         orientation: OrientationSearch | None = None,
+        probes: list[ShapeInput] | None = None,
     ) -> None:
         n_refs = min(len(shape.corr) for shape in shapes)
         if any(len(shape.corr) != n_refs for shape in shapes):
@@ -285,7 +293,7 @@ class Validator:
         self.pairs = list(itertools.permutations(range(len(shapes)), 2)) if pairs is None else list(pairs)
         self._tables: list[np.ndarray] | None = None
         self.progress = progress
-        self.orientation = orientation
+        self.orientation, self.probes = orientation, probes
 
     def distance_tables(self) -> list[np.ndarray]:
         """Per shape, normalised geodesic distances from its reference vertices, (K, V) float32."""
@@ -307,7 +315,7 @@ class Validator:
         network.eval()
         out = [
             normalise_rows(feats.double().numpy())
-            for feats in network_outputs(network, self.shapes, self.orientation)
+            for feats in network_outputs(network, self.shapes, self.orientation, self.probes)
         ]
         network.train(was_training)
         return out

@@ -23,7 +23,7 @@ import torch
 
 from features.diffusion_net import DiffusionNet
 from features.fmap import FmapLossConfig, fmap_terms
-from features.orientation import OrientationSearch, searches_orientation
+from features.orientation import OrientationSearch, probe_input, searches_orientation
 from train.data import TrainShape, Validator, network_outputs
 
 logger = logging.getLogger(__name__)
@@ -155,7 +155,11 @@ def labelled_validator(
     shapes = [prepare_val_shape(shape, config.model, config.data) for shape in bar]
     index = {name: i for i, name in enumerate(names)}
     pair_indices = [(index[a], index[b]) for a, b in pairs]
-    return Validator(shapes, config.data.val_points, config.run.progress, pair_indices, orientation)
+    probes = None
+    if orientation is not None:
+        faces = config.data.target_faces
+        probes = [probe_input(shape.mesh, config.model, faces, config.data.use_cache) for shape in shapes]
+    return Validator(shapes, config.data.val_points, config.run.progress, pair_indices, orientation, probes)
 
 
 def prepare_validation(
