@@ -130,9 +130,8 @@ def learned_features(
     network.eval()
     loss_config = fmap_config_of(read_checkpoint(path))
     shapes = [prepare_val_shape(dataset.load(name), model_config, DataConfig()) for name in names]
-    search = OrientationSearch(shapes[0].input, turns, loss_config)
-    if not searches_orientation(model_config, turns):
-        search.turns = 1  # the shapes as they are
+    tried = turns if searches_orientation(model_config, turns) else 1  # 1: the shapes as they are
+    search = OrientationSearch(shapes[0].input, tried, loss_config)
     found = search.search(network, [shape.input for shape in shapes])
     chosen = {shape.name: angle for shape, (angle, _) in zip(shapes, found)}
     feats = [normalise_rows(out.double().numpy()) for _, out in found]
