@@ -124,15 +124,16 @@ def learned_features(
     Returns the descriptors and the chosen turns.
     """
     from features.learned import fmap_config_of, read_checkpoint
-    from features.orientation import OrientationSearch, searches_orientation
+    from features.orientation import OrientationSearch, oriented_outputs, searches_orientation
 
     network, model_config, _ = load_network(path)
     network.eval()
     loss_config = fmap_config_of(read_checkpoint(path))
     shapes = [prepare_val_shape(dataset.load(name), model_config, DataConfig()) for name in names]
-    tried = turns if searches_orientation(model_config, turns) else 1  # 1: the shapes as they are
-    search = OrientationSearch(shapes[0].input, tried, loss_config)
-    found = search.search(network, [shape.input for shape in shapes])
+    search = None
+    if searches_orientation(model_config, turns):
+        search = OrientationSearch(shapes[0].input, turns, loss_config)
+    found = oriented_outputs(network, [shape.input for shape in shapes], search)
     chosen = {shape.name: angle for shape, (angle, _) in zip(shapes, found)}
     feats = [normalise_rows(out.double().numpy()) for _, out in found]
     return feats, chosen

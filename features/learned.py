@@ -23,6 +23,7 @@ from features.fmap import FmapLossConfig, fmap_terms
 from features.orientation import (
     COORDINATE_INPUTS,
     OrientationSearch,
+    oriented_outputs,
     probe_input,
     search_from_payload,
     searches_orientation,
@@ -219,7 +220,7 @@ class LearnedExtractor:
         self.loss_config = fmap_config_of(stored)
         self.use_cache = use_cache
         self.orientation = orientation_search_of(
-            stored, self.config, self.loss_config, orientation_turns, checkpoint
+            stored, self.config, self.loss_config, orientation_turns, checkpoint, use_cache
         )
         self.turns: dict[str, float] = {}
 
@@ -283,13 +284,12 @@ class LearnedExtractor:
         The turn is chosen on ``probe`` (default: ``mesh`` at the training resolution); without
         a search, ``shape`` is returned as it is.
         """
-        if self.orientation is None:
-            with torch.no_grad():
-                return shape, network(shape.features, shape.ops)
-        if probe is None:
+        if self.orientation is not None and probe is None:
             probe = probe_input(mesh, self.config, self.train_faces, self.use_cache)
-        [(degrees, features)] = self.orientation.search(network, [shape], [probe])
-        self.turns[mesh.name] = degrees
+        probes = None if probe is None else [probe]
+        [(degrees, features)] = oriented_outputs(network, [shape], self.orientation, probes)
+        if self.orientation is not None:
+            self.turns[mesh.name] = degrees
         if degrees:
             logger.info(
                 "%s: input turned %.0f degrees about the vertical axis (orientation search)",
@@ -305,6 +305,7 @@ def orientation_search_of(
     loss: FmapLossConfig,
     turns: int | None,
     path: str | os.PathLike,
+    use_cache: bool = True,
 ) -> OrientationSearch | None:
     """The orientation search a checkpoint asks for, with ``turns`` overriding its setting."""
     payload = checkpoint.get("orientation")
@@ -322,6 +323,6 @@ def orientation_search_of(
             )
         return None
     try:
-        return search_from_payload(payload, model, loss, turns)
+        return search_from_payload(payload, model, loss, turns, use_cache)
     except (KeyError, TypeError, ValueError, AttributeError) as error:
         raise CheckpointError(f"{path}: unreadable orientation reference ({error})") from error

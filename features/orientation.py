@@ -14,7 +14,6 @@ search against it.
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass, replace
 from typing import Any
@@ -25,8 +24,6 @@ import torch
 from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
 from features.fmap import FmapLossConfig, fmap_terms
 from spidermatch.mesh import Mesh
-
-logger = logging.getLogger(__name__)
 
 COORDINATE_INPUTS = ("xyz", "wks_xyz")
 
@@ -111,6 +108,23 @@ class OrientationSearch:
             if loss < best[0]:
                 best = (loss, angle, out)
         return best[1], best[2]
+
+
+def oriented_outputs(
+    network: DiffusionNet,
+    shapes: list[ShapeInput],
+    search: OrientationSearch | None,
+    probes: list[ShapeInput] | None = None,
+) -> list[tuple[float, torch.Tensor]]:
+    """Turn (degrees) and network output (V, C_out) of every shape, without gradients.
+
+    With ``search`` the turns are the search's (chosen on ``probes`` when given, see
+    :meth:`OrientationSearch.search`); without it every shape is taken as it is (turn 0).
+    """
+    if search is not None:
+        return search.search(network, shapes, probes)
+    with torch.no_grad():
+        return [(0.0, network(shape.features, shape.ops)) for shape in shapes]
 
 
 def probe_input(mesh: Mesh, model: ModelConfig, faces: int | None, use_cache: bool = True) -> ShapeInput:

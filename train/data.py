@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 from tqdm.auto import tqdm
 
 from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
-from features.orientation import OrientationSearch
+from features.orientation import OrientationSearch, oriented_outputs
 from features.wks import normalise_rows
 from spidermatch.datasets import Shape, ShapeFolder, SyntheticShapes, open_dataset
 from spidermatch.geodesics import GeodesicDistances
@@ -244,11 +244,8 @@ def network_outputs(
     With an orientation search, each shape is presented in the turn the search chooses
     (on ``probes``, the shapes at training resolution, when given).
     """
-    if orientation is not None:
-        found = orientation.search(network, [shape.input for shape in shapes], probes)
-        return [feats for _, feats in found]
-    with torch.no_grad():
-        return [network(shape.input.features, shape.input.ops) for shape in shapes]
+    found = oriented_outputs(network, [shape.input for shape in shapes], orientation, probes)
+    return [feats for _, feats in found]
 
 
 class Validator:
