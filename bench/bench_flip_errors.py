@@ -120,20 +120,26 @@ def learned_features(
     With ``turns`` > 1 and an input with coordinates (``wks_xyz``, ``xyz``), every shape is
     presented in ``turns`` orientations about the vertical axis and keeps the one whose
     unsupervised loss (the checkpoint's settings) against the first shape is lowest: the
-    orientation search of :mod:`features.orientation`, with the first shape as reference.
+    orientation search of :mod:`features.orientation`, with the first shape as reference; the
+    turns are chosen at the checkpoint's training resolution, as in training and matching.
     Returns the descriptors and the chosen turns.
     """
     from features.learned import fmap_config_of, read_checkpoint
-    from features.orientation import OrientationSearch, oriented_outputs, searches_orientation
+    from features.orientation import OrientationSearch, oriented_outputs, probe_input, searches_orientation
 
     network, model_config, _ = load_network(path)
     network.eval()
-    loss_config = fmap_config_of(read_checkpoint(path))
+    checkpoint = read_checkpoint(path)
+    loss_config = fmap_config_of(checkpoint)
     shapes = [prepare_val_shape(dataset.load(name), model_config, DataConfig()) for name in names]
-    search = None
-    if searches_orientation(model_config, turns):
-        search = OrientationSearch(shapes[0].input, turns, loss_config)
-    found = oriented_outputs(network, [shape.input for shape in shapes], search)
+    search, probes = None, None
+    if searches_orientation(
+        model_config, turns
+    ):  # choose turns at the training resolution, as the product does
+        faces = (checkpoint["config"].get("data") or {}).get("target_faces")
+        probes = [probe_input(shape.mesh, model_config, faces) for shape in shapes]
+        search = OrientationSearch(probes[0], turns, loss_config)
+    found = oriented_outputs(network, [shape.input for shape in shapes], search, probes)
     chosen = {shape.name: angle for shape, (angle, _) in zip(shapes, found)}
     feats = [normalise_rows(out.double().numpy()) for _, out in found]
     return feats, chosen
