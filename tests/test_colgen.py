@@ -131,3 +131,16 @@ def test_a_slice_of_one_pricing_pass_equals_pricing_at_the_lower_threshold(rng):
         assert sliced.bound == pytest.approx(direct.bound, rel=1e-12)
     with pytest.raises(ValueError, match="cutoff"):
         within(wide, 0.1)
+
+
+@pytest.mark.parametrize("seed, route", [(0, "LP solution integral"), (1, "Optimal")])
+def test_both_certificates_equal_brute_force(seed, route):
+    """Seed 0's LP is integral (certified by L(y) alone); seed 1's needs the MIPs."""
+    lazy = tiny_lazy([0, 1, 0, 2], seed)
+    solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, EXACT)
+    assert solved.message.endswith(route) or route in solved.message
+    assert ("integral" in solved.message) == (route != "Optimal")
+    expected = brute_force(lazy.curve, lazy.graph, lazy.costs(np.arange(lazy.n_vars)))
+    assert solved.status == "optimal"
+    assert solved.objective == pytest.approx(expected, rel=1e-9)
+    assert solved.bound <= expected + 1e-9

@@ -60,3 +60,35 @@ def test_blockwise_full_model_equals_build_model():
     assert (blockwise.matrix != model.matrix).nnz == 0
     np.testing.assert_allclose(blockwise.costs, model.costs, rtol=1e-12)
     assert blockwise.row_families == model.row_families
+
+
+def test_compact_submodel_drops_only_rows_that_zero_satisfies_and_keeps_every_optimum():
+    from spidermatch.solve.highs import HighsSession, SolverOptions
+
+    lazy, _ = small_problem()
+    rng = np.random.default_rng(2)
+    columns = np.sort(rng.choice(lazy.n_vars, lazy.n_vars // 3, replace=False))
+    full_rows, compact = lazy.submodel(columns), lazy.compact_submodel(columns)
+    assert compact.n_rows < full_rows.n_rows
+    dropped = np.setdiff1d(np.arange(full_rows.n_rows), np.unique(full_rows.matrix.indices))
+    assert compact.n_rows == full_rows.n_rows - dropped.size + np.sum(full_rows.row_lower[dropped] > 0)
+    assert sum(stop - start for start, stop in compact.row_families.values()) == compact.n_rows
+    for relax in (True, False):
+        values = [
+            HighsSession(m, SolverOptions(mip_rel_gap=0.0), relax=relax).run() for m in (full_rows, compact)
+        ]
+        assert values[0].status == values[1].status
+        if values[0].status == "optimal":
+            assert values[1].objective == pytest.approx(values[0].objective, rel=1e-9)
+
+
+def test_compact_submodel_keeps_the_cycle_row_of_a_layer_without_columns():
+    from spidermatch.solve.highs import HighsSession, SolverOptions
+
+    lazy, _ = small_problem()
+    block = lazy.graph.block_size
+    columns = np.arange(block, lazy.n_vars)  # layer 0 has no column: CYC row 0 reads 0 = 1
+    compact = lazy.compact_submodel(columns)
+    start, _ = compact.row_families["CYC"]
+    assert compact.row_lower[start] == 1.0 and compact.matrix[start].nnz == 0
+    assert HighsSession(compact, SolverOptions(), relax=True).run().status == "infeasible"
