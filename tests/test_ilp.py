@@ -1,4 +1,5 @@
 import math
+import threading
 
 import numpy as np
 import pytest
@@ -250,6 +251,46 @@ def test_session_time_limit_bounds_all_runs_together():
     stopped = spent.run()
     assert stopped.status == "no_solution" and stopped.x is None
     assert "time limit" in stopped.message.lower()
+
+
+class _OverrunningHighs:
+    """A Highs whose run() ignores the time limit (as HiGHS does in some heuristics) until released."""
+
+    def __init__(self, highs):
+        self._highs, self.release, self.finished = highs, threading.Event(), threading.Event()
+
+    def __getattr__(self, name):
+        return getattr(self._highs, name)
+
+    def run(self):
+        self.release.wait()
+        self.finished.set()
+
+
+def test_a_run_that_overruns_its_time_limit_is_left_running_with_its_start_solution(monkeypatch):
+    """Past the deadline the session returns what it knows; the next solve gets a new thread."""
+    import spidermatch.solve.highs as highs_module
+    from spidermatch.solve.highs import HighsSession
+
+    monkeypatch.setattr(highs_module, "OVERRUN_GRACE_S", 0.05)
+    monkeypatch.setattr(highs_module, "STOP_GRACE_S", 0.05)
+    curve, graph, model = creature_instance(24, seed=3)
+    start = solve_model(model, SolverOptions(time_limit=60.0))
+    session = HighsSession(model, SolverOptions(time_limit=0.1))
+    session.set_solution(start.x)
+    stuck = _OverrunningHighs(session.highs)
+    session.highs = stuck
+    try:
+        result = session.run()
+        assert not stuck.finished.is_set()  # it returned while HiGHS was still running
+        assert result.status == "feasible" and "overran its time limit" in result.message
+        np.testing.assert_array_equal(result.x, start.x)
+        assert result.objective == pytest.approx(start.objective)
+        assert not result.proven_optimal
+        again = solve_model(model, SolverOptions(time_limit=60.0))  # not queued behind the stuck run
+        assert again.status == "optimal" and not stuck.finished.is_set()
+    finally:
+        stuck.release.set()
 
 
 def test_two_cycle_cuts_cover_the_two_cycles_of_the_chosen_layers_once():
