@@ -150,14 +150,25 @@ class LazyModel:
         crossing = graph.block_kind[entry] != INTRA
         return layer, entry, (layer + crossing) % graph.n_layers
 
+    @cached_property
+    def _squared_steps(self) -> tuple[np.ndarray, np.ndarray]:
+        """Squared step lengths: of each layer along the curve (L,), of each block entry's target edge (B,).
+
+        A product edge's length is the root of their sum (the curve step counts for crossings only).
+        """
+        c, graph = self.curve.vertices, self.graph
+        source = ((self.source_verts[c] - self.source_verts[np.roll(c, -1)]) ** 2).sum(axis=-1)
+        target = ((self.target_verts[graph.block_src] - self.target_verts[graph.block_dst]) ** 2).sum(axis=-1)
+        return source, target
+
     def _costs(self, layer: np.ndarray, entry: np.ndarray, next_layer: np.ndarray) -> np.ndarray:
+        source_sq, target_sq = self._squared_steps
+        n = self.graph.n_target
+        flat_costs = self.vertex_costs.reshape(-1)
         p, q = self.curve.vertices[layer], self.curve.vertices[next_layer]
         a, b = self.graph.block_src[entry], self.graph.block_dst[entry]
-        length = np.sqrt(
-            ((self.source_verts[p] - self.source_verts[q]) ** 2).sum(axis=-1)
-            + ((self.target_verts[a] - self.target_verts[b]) ** 2).sum(axis=-1)
-        )
-        return length * (self.vertex_costs[p, a] + self.vertex_costs[q, b])
+        length = np.sqrt(np.where(next_layer != layer, source_sq[layer], 0.0) + target_sq[entry])
+        return length * (flat_costs.take(p * n + a) + flat_costs.take(q * n + b))
 
     def submodel(self, columns: np.ndarray) -> IlpModel:
         """The model over the sorted edge ids ``columns`` (k,) with every row of the full model.
@@ -279,9 +290,11 @@ class LazyModel:
         crossing = graph.block_kind[entry] != INTRA
         reduced = self.column_costs[start * graph.block_size : stop * graph.block_size].copy()
         src, dst = graph.block_src[entry], graph.block_dst[entry]
-        reduced -= np.where(crossing, potentials.cyc[layer], 0.0)
-        reduced -= potentials.con[layer, src] - potentials.con[next_layer, dst]
-        reduced -= potentials.pes[layer, src]
+        tail, head = layer * graph.n_target + src, next_layer * graph.n_target + dst  # flat (layer, vertex)
+        con, pes = potentials.con.reshape(-1), potentials.pes.reshape(-1)
+        reduced -= np.where(crossing, potentials.cyc.take(layer), 0.0)
+        reduced -= con.take(tail) - con.take(head)
+        reduced -= pes.take(tail)
         if potentials.ans is not None:
             _, where, _ = self._ans_entries(layer, entry, next_layer)
             reduced[where] -= potentials.ans[dst[where]]
