@@ -234,7 +234,8 @@ def match(
     mip_rel_gap : float, optional
         Relative gap at which a matching counts as optimal (default 1e-4).
     strategy : str, optional
-        "rcfix" (default) or "plain".
+        "auto" (default: "colgen" for learned features, "rcfix" for WKS), "colgen", "rcfix"
+        or "plain"; all certify the same optimum.
     settings : spidermatch.pipeline.MatchSettings, optional
         Every other option (costs, curve, decimation); the keywords above take precedence.
     strict : bool
@@ -271,10 +272,13 @@ def match(
 def _settings(base, feature_name: str, resolution, time_limit, mip_rel_gap, strategy):
     from spidermatch.pipeline import MatchSettings
     from spidermatch.solve.highs import SolverOptions
+    from spidermatch.solve.strategies import AUTO, strategy_for
 
     if base is None:
         base = MatchSettings(
-            resolution=default_resolution(feature_name), solver=SolverOptions(time_limit=DEFAULT_TIME_LIMIT)
+            resolution=default_resolution(feature_name),
+            solver=SolverOptions(time_limit=DEFAULT_TIME_LIMIT),
+            strategy=AUTO,
         )
     solver = base.solver
     if time_limit is not None:
@@ -284,8 +288,7 @@ def _settings(base, feature_name: str, resolution, time_limit, mip_rel_gap, stra
     changes = {"solver": solver}
     if resolution is not None:
         changes["resolution"] = int(resolution)
-    if strategy is not None:
-        changes["strategy"] = str(strategy)
+    changes["strategy"] = strategy_for(str(strategy if strategy is not None else base.strategy), feature_name)
     return dataclasses.replace(base, **changes)
 
 

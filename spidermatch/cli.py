@@ -29,6 +29,7 @@ from spidermatch.io import load_mesh, read_vts
 from spidermatch.mesh import Mesh, MeshError
 from spidermatch.pipeline import MatchError, MatchResult, MatchSettings, match
 from spidermatch.solve.highs import SolverOptions
+from spidermatch.solve.strategies import strategy_for
 from spidermatch.validate import (
     OptionError,
     check_ground_truth,
@@ -78,8 +79,11 @@ def load_inputs(cfg) -> MatchInputs:
     )
 
 
-def settings_from_config(cfg, resolution: int) -> MatchSettings:
-    """Plain-value :class:`MatchSettings` from the composed config."""
+def settings_from_config(cfg, resolution: int, feature_name: str = "wks") -> MatchSettings:
+    """Plain-value :class:`MatchSettings` from the composed config.
+
+    ``feature_name`` (the extractor's name) decides ``solver.strategy=auto`` (:func:`strategy_for`).
+    """
     solver = cfg.solver
     return MatchSettings(
         resolution=int(resolution),
@@ -97,7 +101,7 @@ def settings_from_config(cfg, resolution: int) -> MatchSettings:
             presolve=str(solver.presolve),
             log=bool(solver.log),
         ),
-        strategy=str(solver.strategy),
+        strategy=strategy_for(str(solver.strategy), feature_name),
         dense=dense_settings(cfg),
     )
 
@@ -264,7 +268,9 @@ def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -
     feature_time = time.perf_counter() - start
     report["features"] = feature_name
     logger.info("features (%s) done in %.2f s", feature_name, feature_time)
-    result = match(inputs.source, inputs.target, feat_x, feat_y, settings_from_config(cfg, inputs.resolution))
+    settings = settings_from_config(cfg, inputs.resolution, feature_name)
+    logger.info("solving strategy: %s", settings.strategy)
+    result = match(inputs.source, inputs.target, feat_x, feat_y, settings)
     report.update(result_summary(result, inputs, feature_name))
     report["timings_s"] = {"features": round(feature_time, 3), **report["timings_s"]}
     try:

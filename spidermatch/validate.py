@@ -135,10 +135,10 @@ def check_options(cfg) -> None:
 
     """
     from spidermatch.ilp import FAMILIES
-    from spidermatch.solve.strategies import LAZY_STRATEGIES, STRATEGIES
+    from spidermatch.solve.strategies import AUTO, LAZY_STRATEGIES, STRATEGIES
 
     problems = [resolution_problem(cfg.get("resolution"))]
-    problems += solver_problems(cfg.solver, sorted({*STRATEGIES, *LAZY_STRATEGIES}))
+    problems += solver_problems(cfg.solver, [AUTO, *sorted({*STRATEGIES, *LAZY_STRATEGIES})])
     problems.append(constraints_problem(cfg.costs.get("constraints"), FAMILIES))
     problems += costs_and_curve_problems(cfg)
     problems = [p for p in problems if p]

@@ -166,6 +166,10 @@ def test_settings_defaults_and_precedence():
     assert api._settings(None, "learned", None, None, None, None).resolution == api.LEARNED_RESOLUTION
     given = api._settings(MatchSettings(resolution=77), "wks", None, None, None, "plain")
     assert (given.resolution, given.strategy, given.solver.time_limit) == (77, "plain", float("inf"))
+    assert wks.strategy == "rcfix"  # "auto": WKS's weak LP keeps rcfix
+    assert api._settings(None, "learned", None, None, None, None).strategy == "colgen"
+    assert api._settings(None, "learned", None, None, None, "auto").strategy == "colgen"
+    assert api._settings(None, "wks", None, None, None, "colgen").strategy == "colgen"
     overridden = api._settings(MatchSettings(resolution=77), "wks", 90, 12.0, 1e-3, None)
     solver = overridden.solver
     assert (overridden.resolution, solver.time_limit, solver.mip_rel_gap) == (90, 12.0, 1e-3)

@@ -149,11 +149,22 @@ def test_02_bad_solver_options_exit_2_naming_the_option(tmp_path):
 def test_02_every_strategy_and_curve_matching_is_accepted_and_unknown_ones_named():
     from spidermatch.validate import OptionError, check_options
 
-    for strategy in ("rcfix", "plain", "colgen"):
+    for strategy in ("auto", "rcfix", "plain", "colgen"):
         for matching in ("greedy", "blossom"):
             check_options(config("match", [f"solver.strategy={strategy}", f"curve.matching={matching}"]))
     with pytest.raises(OptionError, match="curve.matching='zigzag'"):
         check_options(config("match", ["curve.matching=zigzag"]))
+
+
+def test_02_strategy_auto_is_colgen_for_learned_features_and_rcfix_for_wks():
+    from spidermatch.cli import settings_from_config
+
+    cfg = config("match", [])
+    assert cfg.solver.strategy == "auto"
+    assert settings_from_config(cfg, 200, "learned").strategy == "colgen"
+    assert settings_from_config(cfg, 200, "wks").strategy == "rcfix"
+    chosen = config("match", ["solver.strategy=plain"])
+    assert settings_from_config(chosen, 200, "learned").strategy == "plain"
 
 
 def test_02_highs_rejecting_a_value_is_an_error():
