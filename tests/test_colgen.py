@@ -144,3 +144,32 @@ def test_both_certificates_equal_brute_force(seed, route):
     assert solved.status == "optimal"
     assert solved.objective == pytest.approx(expected, rel=1e-9)
     assert solved.bound <= expected + 1e-9
+
+
+def test_a_mip_stopped_above_its_outside_bound_widens_and_still_certifies_the_optimum(monkeypatch, caplog):
+    """The first MIP is stopped at once (as if its bound had passed L + min r outside): step 2 certifies."""
+    import dataclasses
+    import math
+
+    import spidermatch.solve.colgen as colgen
+
+    lazy = creature_lazy(24, 3)
+    plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
+    original, calls = colgen._restricted_mip, []
+
+    def first_stopped(lazy, columns, options, *rest):
+        calls.append(rest[-1])
+        if len(calls) > 1:
+            return original(lazy, columns, options, *rest)
+        unsolved = dataclasses.replace(options, presolve="off")  # presolve alone would solve it
+        return original(lazy, columns, unsolved, *rest[:-1], -math.inf)
+
+    monkeypatch.setattr(colgen, "_restricted_mip", first_stopped)
+    monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)  # no LP shortcut: the MIPs run
+    with caplog.at_level("INFO", logger="spidermatch.solve.colgen"):
+        solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, EXACT)
+    assert "above what it could certify: widening" in caplog.text
+    assert len(calls) >= 2 and solved.status == "optimal"
+    assert solved.objective == pytest.approx(plain.objective, rel=1e-9)
+    assert solved.bound <= plain.objective * (1 + 1e-9)
+    assert_one_checked_path(lazy, solved.x)

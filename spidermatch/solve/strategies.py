@@ -109,6 +109,7 @@ def solve_with_cuts(
     incumbent: np.ndarray | None = None,
     pool: CutPool | None = None,
     restricted: IlpModel | None = None,
+    stop_above: float = math.inf,
 ) -> SolveResult:
     """Branch and cut on (a column subset of) the model, with lazy connectivity cuts.
 
@@ -126,7 +127,11 @@ def solve_with_cuts(
     pool : CutPool, optional
         Cuts known from earlier solves (used and extended).
     restricted : IlpModel, optional
-        The model over ``columns`` (every row of the full model), when it was built directly.
+        The model over ``columns`` (the rows of the full model that matter there), when it
+        was built directly.
+    stop_above : float
+        Stop (status "feasible", or "no_solution") as soon as the MIP's dual bound exceeds
+        this: a caller that cannot use a proof above it saves the rest of the search.
 
     Returns
     -------
@@ -142,6 +147,7 @@ def solve_with_cuts(
     else:
         sub = model if columns is None else restrict_columns(model, columns)
     session = HighsSession(sub, options)
+    session.stop_above = stop_above
 
     def add_cuts(rows, lower, upper):
         session.add_rows(rows if columns is None else rows[:, columns], lower, upper)
