@@ -173,3 +173,17 @@ def test_a_mip_stopped_above_its_outside_bound_widens_and_still_certifies_the_op
     assert solved.objective == pytest.approx(plain.objective, rel=1e-9)
     assert solved.bound <= plain.objective * (1 + 1e-9)
     assert_one_checked_path(lazy, solved.x)
+
+
+@pytest.mark.parametrize(
+    "threshold, incumbent_gap, expected",
+    [(0.01, 0.05, 0.05), (0.01, 0.08, 0.08), (0.01, 0.5, 0.04), (0.0, 0.3, 0.3), (0.02, 0.03, 0.03)],
+)
+def test_next_threshold_jumps_to_the_incumbent_gap_when_near_and_grows_fourfold_otherwise(
+    threshold, incumbent_gap, expected
+):
+    from spidermatch.solve.colgen import next_threshold
+
+    grown = next_threshold(threshold, incumbent_gap)
+    assert grown == pytest.approx(expected)
+    assert threshold < grown <= incumbent_gap
