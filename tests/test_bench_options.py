@@ -43,3 +43,21 @@ def test_parse_checked_exits_with_usage_error(capsys):
     assert "--checkpoint" in capsys.readouterr().err
     good = ["creature_000:creature_001"]
     assert parse_checked(parser, ["--pairs", *good]).pairs == good
+
+
+def test_match_process_row_reads_result_json_and_names_a_missing_one(tmp_path):
+    import json
+
+    from bench_match_process import pair_row
+
+    assert pair_row("a:b", 1, 3.0, 100.0, tmp_path)["status"] == "no result.json"
+    result = {
+        "status": "optimal", "gap": 1e-4, "objective": 2.5, "total_time_s": 9.0,
+        "timings_s": {"features": 2.0, "solve": 4.0}, "geodesic_error": {"mean": 0.03},
+        "dense": {"dense": {"geodesic_error": 0.02}},
+    }  # fmt: skip
+    (tmp_path / "result.json").write_text(json.dumps(result))
+    row = pair_row("a:b", 0, 12.345, 900.0, tmp_path)
+    assert (row["status"], row["process_s"], row["solve_s"], row["sparse_error"], row["dense_error"]) == (
+        "optimal", 12.35, 4.0, 0.03, 0.02,
+    )  # fmt: skip
