@@ -149,7 +149,6 @@ def test_both_certificates_equal_brute_force(seed, route):
 def test_a_mip_stopped_above_its_outside_bound_widens_and_still_certifies_the_optimum(monkeypatch, caplog):
     """The first MIP is stopped at once (as if its bound had passed L + min r outside): step 2 certifies."""
     import dataclasses
-    import math
 
     import spidermatch.solve.colgen as colgen
 
@@ -162,7 +161,7 @@ def test_a_mip_stopped_above_its_outside_bound_widens_and_still_certifies_the_op
         if len(calls) > 1:
             return original(lazy, columns, options, *rest)
         unsolved = dataclasses.replace(options, presolve="off")  # presolve alone would solve it
-        return original(lazy, columns, unsolved, *rest[:-1], -math.inf)
+        return original(lazy, columns, unsolved, *rest[:-1], lambda incumbent, dual_bound: True)
 
     monkeypatch.setattr(colgen, "_restricted_mip", first_stopped)
     monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)  # no LP shortcut: the MIPs run
@@ -187,3 +186,13 @@ def test_next_threshold_jumps_to_the_incumbent_gap_when_near_and_grows_fourfold_
     grown = next_threshold(threshold, incumbent_gap)
     assert grown == pytest.approx(expected)
     assert threshold < grown <= incumbent_gap
+
+
+def test_useless_beyond_stops_only_a_mip_that_cannot_certify_and_has_nothing_more_to_give():
+    from spidermatch.solve.colgen import useless_beyond
+
+    stop_when = useless_beyond(outside=10.0, near=11.0, rel_gap=0.0)
+    assert not stop_when(100.0, 9.9)  # may still certify
+    assert not stop_when(100.0, 10.5)  # cannot certify, but a better incumbent would let the next step jump
+    assert stop_when(10.8, 10.5)  # cannot certify and its incumbent is near: the next step jumps to U - L
+    assert stop_when(100.0, 11.5)  # every solution it holds is far: the next step grows fourfold anyway

@@ -399,17 +399,18 @@ def test_cyclic_runs_joins_a_run_that_wraps_around(flags, runs):
     assert cyclic_runs(np.array(flags)) == runs
 
 
-def test_a_mip_stops_once_its_dual_bound_passes_stop_above():
+def test_a_mip_stops_once_stop_when_says_so():
     from spidermatch.solve.strategies import solve_with_cuts
 
     curve, graph, model = creature_instance(24, seed=3)
     optimum = solve_plain(model, graph, curve, SolverOptions(mip_rel_gap=0.0))
-    stopped = solve_with_cuts(
-        model, graph, SolverOptions(mip_rel_gap=0.0), stop_above=optimum.objective - 1.0
-    )
+
+    def above(level):
+        return lambda incumbent, dual_bound: dual_bound > level
+
+    exact = SolverOptions(mip_rel_gap=0.0)
+    stopped = solve_with_cuts(model, graph, exact, stop_when=above(optimum.objective - 1.0))
     assert stopped.status in ("feasible", "no_solution") and "interrupt" in stopped.message.lower()
     assert stopped.bound <= optimum.objective + 1e-9
-    unstopped = solve_with_cuts(
-        model, graph, SolverOptions(mip_rel_gap=0.0), stop_above=optimum.objective + 1.0
-    )
+    unstopped = solve_with_cuts(model, graph, exact, stop_when=above(optimum.objective + 1.0))
     assert unstopped.status == "optimal" and unstopped.objective == pytest.approx(optimum.objective)

@@ -356,11 +356,11 @@ def _lp_incumbent(lazy: LazyModel, lp: ColgenLp) -> np.ndarray | None:
     return None if detached_components(lazy.graph, x) else x
 
 
-def _restricted_mip(lazy, columns, options, incumbent, pool, layers, stop_above) -> SolveResult:
+def _restricted_mip(lazy, columns, options, incumbent, pool, layers, stop_when) -> SolveResult:
     pool.add_two_cycle_cuts(lazy.graph, layers, columns)
     logger.info("colgen: MIP over %d of %d columns, gap %.2g", columns.size, lazy.n_vars, options.mip_rel_gap)
     return solve_with_cuts(
-        None, lazy.graph, options, columns, incumbent, pool, lazy.compact_submodel(columns), stop_above
+        None, lazy.graph, options, columns, incumbent, pool, lazy.compact_submodel(columns), stop_when
     )
 
 
@@ -422,9 +422,8 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     incumbent U satisfies ``U <= L + t`` the MIP's proof covers the full model. Otherwise
     ``t`` grows (:func:`next_threshold`) to at most ``U - L``, and strictly: a MIP that does
     not certify has ``L + min_{j not in C} r_j < B_C <= U`` with every such ``r_j > t``.
-    A MIP stops as soon as its dual bound exceeds that outside bound (plus twice the gap): it
-    cannot certify any more, and on FAUST_r 076->077 at 2000 faces, where the first column set
-    held no path cheaper than the stay path, it went on for 100 s.
+    A MIP stops early once it cannot certify and has nothing more to give the next step
+    (:func:`useless_beyond`).
     The column sets are appended to ``built``.
     """
     incumbent = _lp_incumbent(lazy, lp)
@@ -445,11 +444,8 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
             columns = np.union1d(columns, np.flatnonzero(incumbent > 0.5))
         built.append(columns)
         outside = lp.bound + max(selection.min_outside, 0.0)
-        # a dual bound above the outside bound (with room for the gap) cannot certify this step
-        stop_above = outside + 2.0 * options.mip_rel_gap * abs(outside)
-        result = _restricted_mip(
-            lazy, columns, remaining(options, start), incumbent, pool, layers, stop_above
-        )
+        stop_when = useless_beyond(outside, lp.bound + JUMP * threshold, options.mip_rel_gap)
+        result = _restricted_mip(lazy, columns, remaining(options, start), incumbent, pool, layers, stop_when)
         if result.x is None:
             break  # time limit before a solution of this step: keep the last one
         incumbent = result.x
@@ -467,7 +463,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         out_of_time = remaining(options, start).time_limit <= 0.0
         if out_of_time or result.status not in ("optimal", "feasible"):
             return replace(best, status="feasible")
-        if result.status == "feasible":  # time was left: HiGHS stopped at stop_above
+        if result.status == "feasible":  # time was left: stopped by stop_when
             logger.info(
                 "colgen step %d: MIP bound %.8g above what it could certify: widening", step, result.bound
             )
@@ -475,6 +471,25 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     if best is None:
         return replace(result, bound=lp.bound, gap=math.nan)
     return replace(best, status="feasible", message=f"not certified within {MAX_STEPS} steps")
+
+
+def useless_beyond(outside: float, near: float, rel_gap: float):
+    """When a restricted MIP can no longer help: ``stop_when(incumbent, dual_bound)``.
+
+    Once its dual bound exceeds ``outside`` (the bound O on solutions using a column left out,
+    plus twice the gap) the MIP cannot certify. It is stopped then if its dual bound also
+    exceeds ``near`` = L + ``JUMP`` t (every solution over its columns is too far from L for
+    the next threshold to be U - L: the next step grows fourfold whatever it finds), or once
+    its incumbent is within ``near`` (the next step jumps to U - L with it). On FAUST_r 076->077
+    at 2000 faces the first MIP's columns held no path cheaper than the stay path and it
+    searched 100 s; on TOSCA cat5->cat0 stopping before a good incumbent cost 100 s more.
+    """
+    limit = outside + 2.0 * rel_gap * abs(outside)
+
+    def stop_when(incumbent: float, dual_bound: float) -> bool:
+        return dual_bound > limit and (dual_bound > near or incumbent <= near)
+
+    return stop_when
 
 
 def next_threshold(threshold: float, incumbent_gap: float) -> float:

@@ -250,7 +250,7 @@ class HighsSession:
         self.costs = np.asarray(model.costs, dtype=np.float64)
         self.last_mip = (math.inf, -math.inf)  # (incumbent, dual bound) at HiGHS's last MIP callback
         self.cancel = threading.Event()  # set when the waiting thread gave up: HiGHS stops at its next check
-        self.stop_above = math.inf  # a MIP stops once its dual bound exceeds this (see solve_with_cuts)
+        self.stop_when = None  # (incumbent, dual bound) -> True to stop a MIP early (see solve_with_cuts)
         default_label = "LP relaxation" if relax else f"MIP over {model.n_vars} columns"
         self.progress = ProgressLog(label or default_label)
         self.highs.setCallback(self._on_callback, None)
@@ -268,7 +268,7 @@ class HighsSession:
         if kind == kinds.kCallbackMipInterrupt:
             self.last_mip = (float(data_out.mip_primal_bound), float(data_out.mip_dual_bound))
             self.progress.mip(data_out)
-            if self.last_mip[1] > self.stop_above:
+            if self.stop_when is not None and self.stop_when(*self.last_mip):
                 data_in.user_interrupt = True
         elif kind == kinds.kCallbackSimplexInterrupt:
             self.progress.simplex(data_out)

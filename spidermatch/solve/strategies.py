@@ -109,7 +109,7 @@ def solve_with_cuts(
     incumbent: np.ndarray | None = None,
     pool: CutPool | None = None,
     restricted: IlpModel | None = None,
-    stop_above: float = math.inf,
+    stop_when=None,
 ) -> SolveResult:
     """Branch and cut on (a column subset of) the model, with lazy connectivity cuts.
 
@@ -129,9 +129,10 @@ def solve_with_cuts(
     restricted : IlpModel, optional
         The model over ``columns`` (the rows of the full model that matter there), when it
         was built directly.
-    stop_above : float
-        Stop (status "feasible", or "no_solution") as soon as the MIP's dual bound exceeds
-        this: a caller that cannot use a proof above it saves the rest of the search.
+    stop_when : callable, optional
+        ``stop_when(incumbent, dual_bound) -> bool``, asked at HiGHS's progress reports: True
+        stops the MIP (status "feasible", or "no_solution"), for a caller that has what it
+        can use from this MIP.
 
     Returns
     -------
@@ -147,7 +148,7 @@ def solve_with_cuts(
     else:
         sub = model if columns is None else restrict_columns(model, columns)
     session = HighsSession(sub, options)
-    session.stop_above = stop_above
+    session.stop_when = stop_when
 
     def add_cuts(rows, lower, upper):
         session.add_rows(rows if columns is None else rows[:, columns], lower, upper)
