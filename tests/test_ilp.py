@@ -414,3 +414,24 @@ def test_a_mip_stops_once_stop_when_says_so():
     assert stopped.bound <= optimum.objective + 1e-9
     unstopped = solve_with_cuts(model, graph, exact, stop_when=above(optimum.objective + 1.0))
     assert unstopped.status == "optimal" and unstopped.objective == pytest.approx(optimum.objective)
+
+
+def test_a_time_limit_between_cut_rounds_keeps_the_cheapest_connected_solution():
+    """Not 'no solution' while a closed path is known: the cheapest connected one, marked feasible."""
+    from types import SimpleNamespace
+
+    from spidermatch.solve.highs import SolveResult
+    from spidermatch.solve.strategies import _stopped_while_separating
+
+    graph, costs, optimum, detached = square_instance_with_detached_copy()
+    last = SolveResult("optimal", detached, costs @ detached, costs @ detached - 1.0, 0.0, 1.0, 1, 1, 1)
+    session = SimpleNamespace(
+        improving=[(costs @ detached, detached)], offered=(costs @ optimum, optimum), costs=costs
+    )
+    kept = _stopped_while_separating(last, graph, session, None, graph.n_edges, 0.0, 3)
+    assert kept.status == "feasible" and np.array_equal(kept.x, optimum)
+    assert kept.objective == pytest.approx(costs @ optimum) and kept.bound == last.bound
+    assert "separating detached cycles" in kept.message and not kept.proven_optimal
+    nothing = SimpleNamespace(improving=[(costs @ detached, detached)], offered=None, costs=costs)
+    lost = _stopped_while_separating(last, graph, nothing, None, graph.n_edges, 0.0, 3)
+    assert lost.status == "no_solution" and lost.x is None

@@ -169,16 +169,7 @@ def solve_with_cuts(
         if not components:
             break
         if time.perf_counter() - start >= options.time_limit:
-            return replace(
-                result,
-                status="no_solution",
-                x=None,
-                objective=math.inf,
-                gap=math.nan,
-                wall_time=time.perf_counter() - start,
-                cut_rounds=rounds,
-                message="time limit reached while separating detached cycles",
-            )
+            return _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds)
         rows, lower, upper = connectivity_cuts(graph, components)
         logger.info(
             "cut round %d: %d detached cycles, %d connectivity cuts",
@@ -197,6 +188,30 @@ def solve_with_cuts(
         result = session.run()  # the session gives each run only the time left
     x = expand(result.x, columns, n_vars)
     return replace(result, x=x, wall_time=time.perf_counter() - start, cut_rounds=rounds)
+
+
+def _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds) -> SolveResult:
+    """The time limit came between cut rounds: the cheapest connected solution known, if any.
+
+    HiGHS's bound stays valid (it holds without the newest cuts, so with them too); the
+    solution is the cheapest improving one that is one closed walk, or the start solution.
+    """
+    connected = cheapest_connected(graph, session, columns, n_vars)
+    if connected is None and session.offered is not None:
+        connected = expand(session.offered[1], columns, n_vars)
+    message = "time limit reached while separating detached cycles"
+    if connected is None:
+        return replace(
+            result, status="no_solution", x=None, objective=math.inf, gap=math.nan,
+            wall_time=time.perf_counter() - start, cut_rounds=rounds, message=message,
+        )  # fmt: skip
+    used = connected if columns is None else connected[columns]
+    objective = float(session.costs @ used)
+    return replace(
+        result, status="feasible", x=connected, objective=objective,
+        gap=relative_gap(objective, result.bound), wall_time=time.perf_counter() - start,
+        cut_rounds=rounds, message=message,
+    )  # fmt: skip
 
 
 def imposes_paths(model: IlpModel) -> bool:
