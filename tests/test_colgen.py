@@ -147,21 +147,24 @@ def test_both_certificates_equal_brute_force(seed, route):
 
 
 def test_a_mip_stopped_above_its_outside_bound_widens_and_still_certifies_the_optimum(monkeypatch, caplog):
-    """The first MIP is stopped at once (as if its bound had passed L + min r outside): step 2 certifies."""
-    import dataclasses
+    """The first MIP stops at once with its start solution (as stop_when does): step 2 certifies."""
+    import math
 
     import spidermatch.solve.colgen as colgen
+    from spidermatch.solve.highs import SolveResult
 
     lazy = creature_lazy(24, 3)
     plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
     original, calls = colgen._restricted_mip, []
 
-    def first_stopped(lazy, columns, options, *rest):
-        calls.append(rest[-1])
+    def first_stopped(lazy, columns, options, incumbent, *rest):
+        calls.append(columns.size)
         if len(calls) > 1:
-            return original(lazy, columns, options, *rest)
-        unsolved = dataclasses.replace(options, presolve="off")  # presolve alone would solve it
-        return original(lazy, columns, unsolved, *rest[:-1], lambda incumbent, dual_bound: True)
+            return original(lazy, columns, options, incumbent, *rest)
+        start = float(lazy.costs(np.flatnonzero(incumbent > 0.5)).sum())  # what HiGHS reports when stopped
+        return SolveResult(
+            "feasible", incumbent, start, -math.inf, math.nan, 0.0, columns.size, 1, 1, "stopped"
+        )
 
     monkeypatch.setattr(colgen, "_restricted_mip", first_stopped)
     monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)  # no LP shortcut: the MIPs run
