@@ -201,9 +201,10 @@ def test_useless_beyond_stops_only_a_mip_that_cannot_certify_and_has_nothing_mor
     assert stop_when(100.0, 11.5)  # every solution it holds is far: the next step grows fourfold anyway
 
 
-def test_first_threshold_is_fixed_up_to_1000_faces_and_grows_with_the_curve_beyond():
+def test_first_threshold_is_fixed_up_to_1000_faces_and_grows_with_the_curve_beyond_up_to_twice():
     from spidermatch.solve.colgen import FIRST_STEP, FIRST_STEP_LAYERS, first_threshold
 
     assert first_threshold(-2.0, FIRST_STEP_LAYERS // 2) == pytest.approx(2 * FIRST_STEP)
     assert first_threshold(2.0, FIRST_STEP_LAYERS) == pytest.approx(2 * FIRST_STEP)
     assert first_threshold(2.0, 2 * FIRST_STEP_LAYERS) == pytest.approx(4 * FIRST_STEP)
+    assert first_threshold(2.0, 4 * FIRST_STEP_LAYERS) == pytest.approx(4 * FIRST_STEP)  # capped at twice

@@ -88,6 +88,7 @@ LP_REL_GAP = 1e-7  # column generation stops when the Lagrangian bound is this c
 MAX_LP_ROUNDS = 200
 FIRST_STEP = 4e-3  # first MIP: columns with reduced cost <= this times |L(y)| (LP gaps are ~0.1-0.5 %) ...
 FIRST_STEP_LAYERS = 600  # ... up to this many curve positions (569-586 at 1000 faces); see first_threshold
+FIRST_STEP_MAX_SCALE = 2.0  # ... and at most twice that on longer curves
 PRICED_SPAN = 0.02  # one pricing pass keeps the columns up to this times |L(y)| for all the MIPs
 GROWTH = 4.0  # each further MIP: the threshold grows by at most this factor (or to U - L(y))
 JUMP = 8.0  # ... unless U - L(y) is within this factor: then straight to U - L(y)
@@ -480,9 +481,11 @@ def first_threshold(bound: float, n_layers: int) -> float:
     The LP relaxation's gap grows with the resolution (FAUST_r validation pairs, learned
     features: 0.1-0.5 % at 1000 faces, 1.3-2.5 % at 2000), so a first threshold fixed
     relative to |L| starts too low at 2000 faces and costs a step: median solve 64 s with
-    0.4 %, 44 s with 0.8 %; at 1000 faces 0.8 % was slower (median 4.6 s against 4.2 s).
+    0.4 %, 44 s with 0.8 %; at 1000 faces 0.8 % was slower (median 4.6 s against 4.2 s). The
+    scale is capped at ``FIRST_STEP_MAX_SCALE``: at 4000 faces 1.5 % put 474 k columns into the
+    first MIP of 070->071 (LP gap 0.13 %), whose root node HiGHS had not left after 400 s.
     """
-    return FIRST_STEP * abs(bound) * max(1.0, n_layers / FIRST_STEP_LAYERS)
+    return FIRST_STEP * abs(bound) * min(FIRST_STEP_MAX_SCALE, max(1.0, n_layers / FIRST_STEP_LAYERS))
 
 
 def useless_beyond(outside: float, near: float, rel_gap: float):
