@@ -124,21 +124,19 @@ def learned_features(
     turns are chosen at the checkpoint's training resolution, as in training and matching.
     Returns the descriptors and the chosen turns.
     """
-    from features.learned import fmap_config_of, read_checkpoint
+    from features.learned import fmap_config_of, training_faces_of
     from features.orientation import OrientationSearch, oriented_outputs, probe_input, searches_orientation
 
-    network, model_config, _ = load_network(path)
+    network, model_config, checkpoint = load_network(path)
     network.eval()
-    checkpoint = read_checkpoint(path)
-    loss_config = fmap_config_of(checkpoint)
     shapes = [prepare_val_shape(dataset.load(name), model_config, DataConfig()) for name in names]
     search, probes = None, None
     if searches_orientation(
         model_config, turns
-    ):  # choose turns at the training resolution, as the product does
-        faces = (checkpoint["config"].get("data") or {}).get("target_faces")
+    ):  # turns chosen at the training resolution, as in the product
+        faces = training_faces_of(checkpoint)
         probes = [probe_input(shape.mesh, model_config, faces) for shape in shapes]
-        search = OrientationSearch(probes[0], turns, loss_config)
+        search = OrientationSearch(probes[0], turns, fmap_config_of(checkpoint))
     found = oriented_outputs(network, [shape.input for shape in shapes], search, probes)
     chosen = {shape.name: angle for shape, (angle, _) in zip(shapes, found)}
     feats = [normalise_rows(out.double().numpy()) for _, out in found]

@@ -19,7 +19,6 @@ bench/results/match_process_faust_val.{json,csv} (``--out``).
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import shutil
@@ -30,6 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from bench_scaling import write_rows
 from feature_options import pair_problem
 
 VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
@@ -99,16 +99,10 @@ def format_row(row: dict) -> str:
     )
 
 
-def write_rows(out: Path, rows: list[dict]) -> None:
-    """All rows as JSON (with the command line and medians) and CSV."""
+def summary_of(rows: list[dict]) -> dict:
+    """The median process time of the runs that exited 0."""
     finished = [row["process_s"] for row in rows if row.get("exit_code") == 0]
-    summary = {"median_process_s": statistics.median(finished) if finished else None}
-    out.write_text(json.dumps({"argv": sys.argv, "summary": summary, "rows": rows}, indent=2) + "\n")
-    keys = list(dict.fromkeys(key for row in rows for key in row))
-    with out.with_suffix(".csv").open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=keys)
-        writer.writeheader()
-        writer.writerows(rows)
+    return {"summary": {"median_process_s": statistics.median(finished) if finished else None}}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -143,7 +137,9 @@ def main(argv: list[str] | None = None) -> None:
             )
             rows.append(pair_row(pair, code, wall, peak, run_dir))
             print(format_row(rows[-1]), flush=True)
-            write_rows(out, rows)  # after every pair: a run stopped half way keeps what it measured
+            write_rows(
+                out, rows, summary_of(rows)
+            )  # after every pair: a run stopped half way keeps what it measured
     print(f"wrote {out} and {out.with_suffix('.csv')}")
 
 

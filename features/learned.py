@@ -162,6 +162,11 @@ def fmap_config_of(checkpoint: dict[str, Any]) -> FmapLossConfig:
     return FmapLossConfig(**{key: value for key, value in stored.items() if key in names})
 
 
+def training_faces_of(checkpoint: dict[str, Any]) -> int | None:
+    """The face count the checkpoint's training shapes were decimated to (None: not decimated)."""
+    return (checkpoint["config"].get("data") or {}).get("target_faces")
+
+
 class LearnedExtractor:
     """Descriptors of a trained DiffusionNet, computed at full resolution.
 
@@ -214,8 +219,7 @@ class LearnedExtractor:
         self.n_eig = n_eig
         self.adapt_steps = adapt_steps
         self.adapt_lr = adapt_lr
-        data = stored["config"].get("data") or {}
-        self.train_faces = data.get("target_faces")
+        self.train_faces = training_faces_of(stored)
         self.adapt_faces = adapt_faces if adapt_faces is not None else self.train_faces
         self.loss_config = fmap_config_of(stored)
         self.use_cache = use_cache

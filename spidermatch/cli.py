@@ -79,7 +79,7 @@ def load_inputs(cfg) -> MatchInputs:
     )
 
 
-def settings_from_config(cfg, resolution: int, feature_name: str = "wks") -> MatchSettings:
+def settings_from_config(cfg, resolution: int, feature_name: str) -> MatchSettings:
     """Plain-value :class:`MatchSettings` from the composed config.
 
     ``feature_name`` (the extractor's name) decides ``solver.strategy=auto`` (:func:`strategy_for`).

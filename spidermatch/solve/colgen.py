@@ -381,9 +381,11 @@ def _no_result(kind: str, message: str, lazy: LazyModel, start: float, bound: fl
     )
 
 
-def _lp_certified(lazy: LazyModel, lp: ColgenLp, x: np.ndarray, start: float) -> SolveResult:
-    """An integral, connected LP solution x (n_vars,) within the target gap of L(y): no MIP needed."""
-    objective, bound = objective_of(lazy, x), lp.bound
+def _lp_certified(
+    lazy: LazyModel, lp: ColgenLp, x: np.ndarray, objective: float, start: float
+) -> SolveResult:
+    """An integral, connected LP solution x (n_vars,) of cost ``objective`` within the target gap of L(y)."""
+    bound = lp.bound
     logger.info("colgen: the LP solution is integral and one closed path, certified by L(y) alone")
     return SolveResult(
         "optimal",
@@ -429,12 +431,15 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     The column sets are appended to ``built``.
     """
     incumbent = _lp_incumbent(lazy, lp)
-    if incumbent is not None and relative_gap(objective_of(lazy, incumbent), lp.bound) <= options.mip_rel_gap:
-        return _lp_certified(lazy, lp, incumbent, start)
+    if incumbent is not None:
+        objective = objective_of(lazy, incumbent)
+        if relative_gap(objective, lp.bound) <= options.mip_rel_gap:
+            return _lp_certified(lazy, lp, incumbent, objective, start)
+    stay = stay_seed(lazy)
     if incumbent is None:  # the stay path satisfies every row and cut: a run that times out still has it
         incumbent = np.zeros(lazy.n_vars)
-        incumbent[stay_seed(lazy)] = 1.0
-    base = np.union1d(lp.support(), stay_seed(lazy))
+        incumbent[stay] = 1.0
+    base = np.union1d(lp.support(), stay)
     threshold, best = first_threshold(lp.bound, lazy.graph.n_layers), None
     priced = lp.pricing
     for step in range(1, MAX_STEPS + 1):
