@@ -40,7 +40,7 @@ FULL_MODEL_COLUMNS_PER_FACE2 = 3.74  # |E_P| ~ 0.575 f * 6.5 f on FAUST_r meshes
 
 def run_instance(task: tuple) -> dict:
     """Match one pair at one resolution with one strategy; the row of figures."""
-    data, pair, faces, strategy, features, checkpoint, time_limit, matching, log_dir = task
+    data, pair, faces, strategy, features, checkpoint, adapt_steps, time_limit, matching, log_dir = task
     if log_dir:  # the solver's INFO log of this instance, one file per instance
         import logging
 
@@ -51,7 +51,7 @@ def run_instance(task: tuple) -> dict:
     from spidermatch.solve.highs import SolverOptions
 
     start = time.perf_counter()
-    x, y, feat_x, feat_y = load_pair_with_features(data, pair, features, checkpoint)
+    x, y, feat_x, feat_y = load_pair_with_features(data, pair, features, checkpoint, adapt_steps)
     features_s = time.perf_counter() - start
     settings = MatchSettings(
         resolution=faces,
@@ -66,6 +66,7 @@ def run_instance(task: tuple) -> dict:
         "faces": faces,
         "strategy": strategy,
         "curve_matching": matching,
+        "adapt_steps": adapt_steps,
         "status": solved.status,
         "columns_built": solved.columns_built if solved.columns_built is not None else result.graph.n_edges,
         "columns_full": result.graph.n_edges,
@@ -134,7 +135,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--full-model-columns", type=float, default=2.0e7)
     parser.add_argument("--out", default="bench/results/solver_scaling_faust_val.json")
     parser.add_argument("--log-dir", default=None, help="write each instance's INFO log to this folder")
-    add_feature_options(parser)
+    add_feature_options(parser, adaptation=True)
     args = parse_checked(parser, argv)
     out, rows = Path(args.out), []
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -150,7 +151,8 @@ def main(argv: list[str] | None = None) -> None:
                 if strategy != "colgen" and full > args.full_model_columns:
                     row = skipped_row(pair, faces, strategy, args.full_model_columns)
                 else:
-                    task = (args.data, pair, faces, strategy, args.features, args.checkpoint)
+                    features = (args.features, args.checkpoint, args.adapt_steps)
+                    task = (args.data, pair, faces, strategy, *features)
                     start = time.perf_counter()
                     with context.Pool(1) as pool:
                         extra = (args.time_limit, args.curve_matching, args.log_dir)

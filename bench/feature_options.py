@@ -7,10 +7,18 @@ import argparse
 import numpy as np
 
 
-def add_feature_options(parser: argparse.ArgumentParser) -> None:
-    """Add ``--features {wks,learned}`` and ``--checkpoint PATH``."""
+def add_feature_options(parser: argparse.ArgumentParser, adaptation: bool = False) -> None:
+    """Add ``--features {wks,learned}``, ``--checkpoint PATH`` (and ``--adapt-steps N`` if ``adaptation``)."""
     parser.add_argument("--features", default="wks", choices=("wks", "learned"))
     parser.add_argument("--checkpoint", default=None, help="trained network for --features learned")
+    if not adaptation:
+        return
+    parser.add_argument(
+        "--adapt-steps",
+        type=int,
+        default=0,
+        help="test-time adaptation steps on each pair (features.adapt_steps of spidermatch-match)",
+    )
 
 
 def parse_checked(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
@@ -22,6 +30,9 @@ def parse_checked(parser: argparse.ArgumentParser, argv: list[str] | None) -> ar
     args = parser.parse_args(argv)
     if args.features == "learned" and args.checkpoint is None:
         parser.error("--features learned needs --checkpoint PATH (a spidermatch-train best.pt)")
+    adapt_steps = getattr(args, "adapt_steps", 0)
+    if adapt_steps < 0 or (adapt_steps and args.features != "learned"):
+        parser.error("--adapt-steps must be >= 0, and adapts learned features only")
     problem = pair_problem(args.data, args.pairs)
     if problem:
         parser.error(problem)
@@ -46,13 +57,25 @@ def pair_problem(data: str, pairs: list[str]) -> str | None:
     return None
 
 
-def load_pair_with_features(data: str, pair: tuple[str, str], features: str, checkpoint: str | None):
-    """Both shapes of a dataset pair and their per-vertex features (V_X, D), (V_Y, D)."""
+def load_pair_with_features(
+    data: str, pair: tuple[str, str], features: str, checkpoint: str | None, adapt_steps: int = 0
+):
+    """Both shapes of a dataset pair and their per-vertex features (V_X, D), (V_Y, D).
+
+    With ``adapt_steps`` > 0 the network is first adapted to the pair, as ``spidermatch-match
+    features.adapt_steps=N`` does.
+    """
     from features.extractor import extractor_by_name
     from spidermatch.datasets import open_dataset
 
     dataset = open_dataset(data)
     x, y = dataset.load(pair[0]), dataset.load(pair[1])
+    if adapt_steps:
+        from features.learned import LearnedExtractor
+
+        adapted = LearnedExtractor(checkpoint, adapt_steps=adapt_steps)
+        feat_x, feat_y = adapted.pair_features(x.mesh.centred(), y.mesh.centred())
+        return x, y, feat_x, feat_y
     extractor = extractor_by_name(features, checkpoint)
     feat_x: np.ndarray = extractor(x.mesh.centred())
     feat_y: np.ndarray = extractor(y.mesh.centred())

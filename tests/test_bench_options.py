@@ -61,3 +61,23 @@ def test_match_process_row_reads_result_json_and_names_a_missing_one(tmp_path):
     assert (row["status"], row["process_s"], row["solve_s"], row["sparse_error"], row["dense_error"]) == (
         "optimal", 12.35, 4.0, 0.03, 0.02,
     )  # fmt: skip
+
+
+def test_adapt_steps_are_refused_for_wks_and_below_zero(capsys):
+    parser = argparse.ArgumentParser(prog="bench")
+    parser.add_argument("--data", default="synthetic")
+    parser.add_argument("--pairs", nargs="+", required=True)
+    add_feature_options(parser, adaptation=True)
+    good = ["--pairs", "creature_000:creature_001"]
+    with pytest.raises(SystemExit):
+        parse_checked(parser, [*good, "--adapt-steps", "20"])  # WKS has nothing to adapt
+    assert "--adapt-steps" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        parse_checked(parser, [*good, "--features", "learned", "--checkpoint", "x.pt", "--adapt-steps", "-1"])
+    assert "--adapt-steps" in capsys.readouterr().err
+    learned = [*good, "--features", "learned", "--checkpoint", "x.pt"]
+    assert parse_checked(parser, [*learned, "--adapt-steps", "20"]).adapt_steps == 20
+    plain = argparse.ArgumentParser(prog="bench")
+    add_feature_options(plain)
+    with pytest.raises(SystemExit):  # scripts that do not adapt do not offer the option
+        plain.parse_args(["--adapt-steps", "20"])

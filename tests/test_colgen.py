@@ -78,7 +78,9 @@ def test_colgen_bound_holds_when_the_optimum_needs_columns_the_seed_lacked(seed,
     used = np.flatnonzero(solved.x > 0.5)
     assert not np.isin(used, seeds[0]).all()  # the optimal path uses columns the seed did not have
     assert "colgen round 2" in caplog.text  # they were priced in
-    assert "colgen step 2" in caplog.text  # and the MIPs' column set had to grow
+    # whether the first MIP (LP support and stay seed) already holds the optimum depends on which
+    # optimal LP vertex HiGHS returns (seed 7: it did with highspy 1.16, not with an earlier release);
+    # widening is tested on its own below
     assert solved.status == "optimal"
     assert solved.objective == pytest.approx(plain.objective, rel=1e-6)
     assert solved.bound <= plain.objective * (1 + 1e-9)

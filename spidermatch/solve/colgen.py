@@ -553,7 +553,7 @@ def solve_column_generation(
         "colgen LP: %d of %d columns in %d rounds, bound %.8g (%.1f s)",
         lp.columns.size, lazy.n_vars, lp.rounds, lp.bound, time.perf_counter() - start,
     )  # fmt: skip
-    pool, layers = CutPool(), np.flatnonzero(curve.is_intersection_layer)
+    pool, layers = CutPool(first_layer=curve.first_layer), np.flatnonzero(curve.is_intersection_layer)
     built = [lp.columns]
     result = certify_by_steps(lazy, lp, options, start, pool, layers, built)
     return replace(

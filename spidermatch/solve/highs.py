@@ -341,6 +341,27 @@ class HighsSession:
         self.n_vars += k
         self.nnz += int(columns.nnz)
 
+    def add_continuous_columns(self, costs: np.ndarray, upper: np.ndarray) -> None:
+        """Append continuous variables in [0, ``upper``] (k,) with ``costs`` (k,), in no row yet.
+
+        Works for MIP sessions too (HiGHS makes added columns continuous); rows that use them
+        come with :meth:`add_rows`.
+        """
+        costs = np.asarray(costs, dtype=np.float64)
+        k = costs.size
+        self.highs.addCols(
+            k,
+            costs,
+            np.zeros(k),
+            np.asarray(upper, dtype=np.float64),
+            0,
+            np.zeros(k, dtype=np.int32),
+            np.zeros(0, dtype=np.int32),
+            np.zeros(0),
+        )
+        self.n_vars += k
+        self.costs = np.concatenate([self.costs, costs])
+
     def row_duals(self) -> np.ndarray:
         """Row duals (m,) of the last LP solve (HiGHS's sign convention: ``r = c - A^T y``)."""
         return np.asarray(self.highs.getSolution().row_dual, dtype=np.float64)

@@ -35,6 +35,7 @@ from spidermatch.product_graph import ProductGraph
 from spidermatch.solve.connectivity import connectivity_cuts, detached_components, two_cycle_components
 from spidermatch.solve.fixing import DualBound, dual_bound
 from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
+from spidermatch.solve.layer_flow import SessionFlows
 
 logger = logging.getLogger(__name__)
 
@@ -53,6 +54,21 @@ class CutPool:
     lower: np.ndarray | None = None
     upper: np.ndarray | None = None
     two_cycles: set = field(default_factory=set)
+    flow_layers: set = field(default_factory=set)
+    first_layer: np.ndarray | None = None
+
+    def note_detached(self, graph: ProductGraph, components: list[np.ndarray]) -> set:
+        """Remember the layers of detached components for flow rows; returns all such layers.
+
+        With ``first_layer`` (the curve's, shape (L,)) every layer of the same source vertex
+        is added too: PES ties their out-flows, so a cycle cut off in one may move to another.
+        """
+        layers = {int(nodes[0] // graph.n_target) for nodes in components}
+        if self.first_layer is not None:
+            firsts = self.first_layer[sorted(layers)]
+            layers |= set(np.flatnonzero(np.isin(self.first_layer, firsts)).tolist())
+        self.flow_layers |= layers
+        return self.flow_layers
 
     def add(self, rows: sp.csr_matrix, lower: np.ndarray, upper: np.ndarray) -> None:
         """Remember new cut rows."""
@@ -78,11 +94,16 @@ class CutPool:
 
 
 def expand(x_sub: np.ndarray | None, columns: np.ndarray | None, n_vars: int) -> np.ndarray | None:
-    """A sub-model solution (k,) as a full-model vector (n,), zeros elsewhere."""
-    if x_sub is None or columns is None:
-        return x_sub
+    """A sub-model solution (k,) as a full-model vector (n,), zeros elsewhere.
+
+    Entries after the first k (flow variables of :mod:`spidermatch.solve.layer_flow`) are dropped.
+    """
+    if x_sub is None:
+        return None
+    if columns is None:
+        return x_sub[:n_vars]
     x = np.zeros(n_vars)
-    x[columns] = x_sub
+    x[columns] = x_sub[: columns.size]
     return x
 
 
@@ -149,14 +170,17 @@ def solve_with_cuts(
         sub = model if columns is None else restrict_columns(model, columns)
     session = HighsSession(sub, options)
     session.stop_when = stop_when
+    flows = SessionFlows(graph, np.arange(n_vars) if columns is None else columns, session)
 
     def add_cuts(rows, lower, upper):
         session.add_rows(rows if columns is None else rows[:, columns], lower, upper)
 
     if pool.rows is not None:
         add_cuts(pool.rows, pool.lower, pool.upper)
+    if pool.flow_layers:
+        _cover(flows, pool.flow_layers)
     if incumbent is not None:
-        session.set_solution(incumbent if columns is None else incumbent[columns])
+        _offer(session, flows, incumbent if columns is None else incumbent[columns])
     result = session.run()
     rounds = 0
     # connectivity cuts are valid for closed paths, which only flow conservation (CON) makes
@@ -179,15 +203,31 @@ def solve_with_cuts(
         )
         pool.add(rows, lower, upper)
         add_cuts(rows, lower, upper)
+        _cover(flows, pool.note_detached(graph, components))
         rounds = round_number
         connected = cheapest_connected(graph, session, columns, n_vars)
         if connected is not None:
             restart = connected if columns is None else connected[columns]
             logger.info("restarting from the best connected solution found so far, %.6g", sub.costs @ restart)
-            session.set_solution(restart)
+            _offer(session, flows, restart)
         result = session.run()  # the session gives each run only the time left
     x = expand(result.x, columns, n_vars)
     return replace(result, x=x, wall_time=time.perf_counter() - start, cut_rounds=rounds)
+
+
+def _cover(flows: SessionFlows, layers) -> None:
+    added = flows.cover(layers)
+    if added:
+        logger.info(
+            "flow rows keep the path in one piece in %d layers (%d flow variables added)",
+            len(flows.covered),
+            added,
+        )
+
+
+def _offer(session: HighsSession, flows: SessionFlows, x_sub: np.ndarray) -> None:
+    """Offer a single closed path x_sub (k,) as the start, with its flow values."""
+    session.set_solution(flows.start_vector(x_sub))
 
 
 def _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds) -> SolveResult:
@@ -206,7 +246,7 @@ def _stopped_while_separating(result, graph, session, columns, n_vars, start, ro
             wall_time=time.perf_counter() - start, cut_rounds=rounds, message=message,
         )  # fmt: skip
     used = connected if columns is None else connected[columns]
-    objective = float(session.costs @ used)
+    objective = float(session.costs[: used.size] @ used)
     return replace(
         result, status="feasible", x=connected, objective=objective,
         gap=relative_gap(objective, result.bound), wall_time=time.perf_counter() - start,
@@ -323,7 +363,7 @@ def solve_reduced_cost_fixing(
             "infeasible", None, math.inf, math.inf, math.nan, time.perf_counter() - start,
             model.n_vars, model.n_rows, model.nnz, "LP relaxation infeasible",
         )  # fmt: skip
-    pool = CutPool()
+    pool = CutPool(first_layer=curve.first_layer)
     intersection_layers = np.flatnonzero(curve.is_intersection_layer)
     columns = seed_columns(lp, 1.0)
     incumbent, result, scale, certified = None, None, 1.0, False
