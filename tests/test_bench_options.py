@@ -81,3 +81,12 @@ def test_adapt_steps_are_refused_for_wks_and_below_zero(capsys):
     add_feature_options(plain)
     with pytest.raises(SystemExit):  # scripts that do not adapt do not offer the option
         plain.parse_args(["--adapt-steps", "20"])
+
+
+def test_a_cold_cache_run_gets_its_own_empty_operator_cache(tmp_path):
+    from bench_match_process import run_process
+
+    command = [sys.executable, "-c", "import os; print(os.environ.get('SPIDERMATCH_CACHE_DIR'))"]
+    log = tmp_path / "log.txt"
+    code, _, _ = run_process(command, log, tmp_path / "cache")
+    assert code == 0 and log.read_text().strip() == str(tmp_path / "cache")
