@@ -122,3 +122,20 @@ def test_a_detached_cycle_puts_its_layer_and_the_layers_of_its_source_vertex_und
     covered = pool.note_detached(graph, components)
     expected = {0, 2} if layer in (0, 2) else {layer}
     assert covered == expected
+
+
+def test_a_start_with_a_detached_cycle_is_not_offered_once_flow_rows_exist(caplog):
+    from spidermatch.solve.highs import HighsSession
+    from spidermatch.solve.layer_flow import SessionFlows
+    from spidermatch.solve.strategies import _offer
+
+    _, _, optimum, detached = square_instance_with_detached_copy()
+    curve, graph, costs = instance([0, 1, 0, 2], SQUARE, 4, 4)  # the same instance
+    session = HighsSession(build_model(graph, curve, costs), EXACT)
+    flows = SessionFlows(graph, np.arange(graph.n_edges), session)
+    flows.cover(range(graph.n_layers))
+    with caplog.at_level("WARNING"):
+        _offer(session, flows, detached)
+    assert session.offered is None and "not offered" in caplog.text
+    _offer(session, flows, optimum)
+    assert session.offered is not None and session.offered[1].size == session.n_vars

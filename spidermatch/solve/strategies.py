@@ -226,8 +226,17 @@ def _cover(flows: SessionFlows, layers) -> None:
 
 
 def _offer(session: HighsSession, flows: SessionFlows, x_sub: np.ndarray) -> None:
-    """Offer a single closed path x_sub (k,) as the start, with its flow values."""
-    session.set_solution(flows.start_vector(x_sub))
+    """Offer a single closed path x_sub (k,) as the start, with its flow values.
+
+    A vector that is not one closed walk has no flow values; it is not offered (HiGHS would
+    reject it under the flow rows anyway).
+    """
+    try:
+        start = flows.start_vector(x_sub)
+    except ValueError as error:
+        logger.warning("start solution not offered: %s", error)
+        return
+    session.set_solution(start)
 
 
 def _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds) -> SolveResult:
