@@ -446,3 +446,77 @@ def test_a_time_limit_between_cut_rounds_keeps_the_cheapest_connected_solution()
     nothing = SimpleNamespace(improving=[(costs @ detached, detached)], offered=None, costs=costs)
     lost = _stopped_while_separating(last, graph, nothing, None, graph.n_edges, 0.0, 3)
     assert lost.status == "no_solution" and lost.x is None
+
+
+def test_a_run_after_one_stopped_on_request_is_not_stopped_by_the_old_request():
+    """HiGHS keeps its interrupt flag between runs of a session; the callback must clear it."""
+    from spidermatch.solve.highs import HighsSession
+
+    curve, graph, model = creature_instance(24, seed=3)
+    session = HighsSession(model, SolverOptions(mip_rel_gap=0.0))
+    session.stop_when = lambda incumbent, dual_bound: True
+    first = session.run()
+    assert first.status in ("no_solution", "feasible") and session.stopped_early
+    session.stop_when = None
+    second = session.run()
+    assert second.status == "optimal" and not session.stopped_early
+    assert second.objective == pytest.approx(
+        solve_plain(model, graph, curve, SolverOptions(mip_rel_gap=0.0)).objective
+    )
+
+
+def test_a_mip_stopped_on_request_with_detached_cycles_keeps_its_bound_and_cuts_without_a_re_solve(
+    monkeypatch,
+):
+    from spidermatch.solve.highs import HighsSession, SolveResult
+    from spidermatch.solve.strategies import CutPool, solve_with_cuts
+
+    graph, costs, optimum, detached = square_instance_with_detached_copy()
+    curve = SpiderCurve(np.array([0, 1, 0, 2]), 3)
+    model = build_model(graph, curve, costs)
+    runs = []
+
+    def stopped_with_a_detached_cycle(self):
+        runs.append(self.offered)
+        self.stopped_early = True
+        value = float(costs @ detached)
+        return SolveResult(
+            "feasible", detached, value, value - 1.0, 0.1, 0.0, self.n_vars, self.n_rows, self.nnz
+        )
+
+    monkeypatch.setattr(HighsSession, "run", stopped_with_a_detached_cycle)
+    pool = CutPool()
+    result = solve_with_cuts(
+        model, graph, SolverOptions(), incumbent=optimum, pool=pool, stop_when=lambda *_: True
+    )
+    assert len(runs) == 1  # no re-solve
+    assert result.status == "feasible" and np.array_equal(result.x, optimum)  # the connected start
+    assert result.bound == pytest.approx(costs @ detached - 1.0)  # the stopped run's bound still holds
+    assert pool.rows is not None and (pool.rows @ detached < pool.lower).any()  # cut for later solves
+    assert pool.flow_layers and "stopped on request" in result.message
+
+
+def test_stop_when_judges_the_cheapest_closed_path_not_an_incumbent_with_detached_cycles():
+    from types import SimpleNamespace
+
+    import highspy
+
+    from spidermatch.solve.connectivity import detached_components
+    from spidermatch.solve.highs import HighsSession
+
+    graph, costs, optimum, detached = square_instance_with_detached_copy()
+    curve = SpiderCurve(np.array([0, 1, 0, 2]), 3)
+    session = HighsSession(build_model(graph, curve, costs), SolverOptions(mip_rel_gap=0.0))
+    session.usable = lambda x: not detached_components(graph, np.round(x))
+    seen = []
+    session.stop_when = lambda incumbent, dual_bound: seen.append(incumbent) or False
+    session.set_solution(optimum)
+    kinds = highspy.cb.HighsCallbackType
+    found = SimpleNamespace(mip_solution=detached, objective_function_value=float(costs @ optimum) - 1.0)
+    session._on_callback(kinds.kCallbackMipImprovingSolution, "", found, None, None)
+    report = SimpleNamespace(
+        mip_primal_bound=float(costs @ optimum) - 1.0, mip_dual_bound=0.0, mip_node_count=0, running_time=0.0,
+        mip_gap=0.0, objective_function_value=0.0,
+    )  # fmt: skip
+    session._on_callback(kinds.kCallbackMipInterrupt, "", report, SimpleNamespace(user_interrupt=False), None)
+    assert seen == [pytest.approx(costs @ optimum)]  # the detached one is cheaper but not a closed path

@@ -35,7 +35,14 @@ def detached_components(graph: ProductGraph, x: np.ndarray) -> list[np.ndarray]:
         Each array holds product vertex ids ``layer * V_Y + y`` of one detached component.
 
     """
-    tuples = active_edges(graph, x)
+    if np.shape(x) != (graph.n_edges,):
+        active_edges(graph, x)  # raises SolutionError naming both sizes
+    return detached_components_of_edges(graph, np.flatnonzero(x > 0.5))
+
+
+def detached_components_of_edges(graph: ProductGraph, edge_ids: np.ndarray) -> list[np.ndarray]:
+    """:func:`detached_components` of the solution that uses exactly the edges ``edge_ids`` (k,)."""
+    tuples = graph.edge_tuples(edge_ids)
     crossing_into_0 = tuples[(tuples[:, 4] != INTRA) & (tuples[:, 2] == 0)]
     if len(crossing_into_0) != 1:
         return []  # not a CYC-feasible solution; nothing to separate here

@@ -251,6 +251,9 @@ class HighsSession:
         self.last_mip = (math.inf, -math.inf)  # (incumbent, dual bound) at HiGHS's last MIP callback
         self.cancel = threading.Event()  # set when the waiting thread gave up: HiGHS stops at its next check
         self.stop_when = None  # (incumbent, dual bound) -> True to stop a MIP early (see solve_with_cuts)
+        self.stopped_early = False  # the last run was stopped by stop_when
+        self.usable = None  # x (n,) -> bool: may an improving solution be used (e.g. one closed path)?
+        self.best_usable = math.inf  # cheapest usable solution known (start or improving)
         default_label = "LP relaxation" if relax else f"MIP over {model.n_vars} columns"
         self.progress = ProgressLog(label or default_label)
         self.highs.setCallback(self._on_callback, None)
@@ -265,22 +268,28 @@ class HighsSession:
         if kind == kinds.kCallbackMipImprovingSolution:
             self._record_improving(data_out)
             return
+        stop = guard.stop_requested() or self.cancel.is_set()
         if kind == kinds.kCallbackMipInterrupt:
             self.last_mip = (float(data_out.mip_primal_bound), float(data_out.mip_dual_bound))
             self.progress.mip(data_out)
-            if self.stop_when is not None and self.stop_when(*self.last_mip):
-                data_in.user_interrupt = True
+            incumbent = self.best_usable if self.usable is not None else self.last_mip[0]
+            if not stop and self.stop_when is not None and self.stop_when(incumbent, self.last_mip[1]):
+                stop = self.stopped_early = True
         elif kind == kinds.kCallbackSimplexInterrupt:
             self.progress.simplex(data_out)
-        if guard.stop_requested() or self.cancel.is_set():
-            data_in.user_interrupt = True
+        # always written: HiGHS keeps the flag between runs of a session, so a True left from an
+        # earlier run would stop the next run at its first check
+        data_in.user_interrupt = bool(stop)
 
     def _record_improving(self, data_out) -> None:
         """Keep a copy of an improving solution."""
         x = np.array(data_out.mip_solution, dtype=np.float64)
         if x.shape == (self.n_vars,):
-            self.improving.append((float(data_out.objective_function_value), x))
+            objective = float(data_out.objective_function_value)
+            self.improving.append((objective, x))
             del self.improving[:-KEEP_IMPROVING]  # the most recent ones (later runs may report dearer ones)
+            if self.usable is not None and objective < self.best_usable and self.usable(x):
+                self.best_usable = objective
 
     def set_solution(self, x: np.ndarray) -> None:
         """Offer a feasible 0/1 vector (n,) as a starting incumbent."""
@@ -289,6 +298,7 @@ class HighsSession:
         self.highs.setSolution(self.n_vars, index, x)
         if not self.relax and x.shape == self.costs.shape:
             self.offered = (float(self.costs @ x), x.copy())
+            self.best_usable = min(self.best_usable, self.offered[0])  # starts are closed paths
 
     def add_rows(self, rows, lower: np.ndarray, upper: np.ndarray) -> None:
         """Append constraints ``lower <= rows @ x <= upper`` (rows: scipy sparse, (k, n))."""
@@ -379,6 +389,7 @@ class HighsSession:
             set_option(self.highs, "time_limit", left)
             deadline = start + left + OVERRUN_GRACE_S
         self.cancel.clear()
+        self.stopped_early = False
         finished = run_interruptibly(self.highs, self._figures_so_far, self.cancel, deadline)
         if not finished:
             return self._abandoned_result(time.perf_counter() - start)

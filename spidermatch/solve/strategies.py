@@ -32,7 +32,12 @@ from spidermatch.curve import SpiderCurve
 from spidermatch.guard import RunInterrupted
 from spidermatch.ilp import IlpModel, restrict_columns
 from spidermatch.product_graph import ProductGraph
-from spidermatch.solve.connectivity import connectivity_cuts, detached_components, two_cycle_components
+from spidermatch.solve.connectivity import (
+    connectivity_cuts,
+    detached_components,
+    detached_components_of_edges,
+    two_cycle_components,
+)
 from spidermatch.solve.fixing import DualBound, dual_bound
 from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
 from spidermatch.solve.layer_flow import SessionFlows
@@ -153,7 +158,10 @@ def solve_with_cuts(
     stop_when : callable, optional
         ``stop_when(incumbent, dual_bound) -> bool``, asked at HiGHS's progress reports: True
         stops the MIP (status "feasible", or "no_solution"), for a caller that has what it
-        can use from this MIP.
+        can use from this MIP. ``incumbent`` is the cheapest *closed path* known (the start
+        or an improving solution without detached cycles), not HiGHS's own incumbent, which
+        may have detached cycles that a re-solve would cut off. A run it stops is not
+        re-solved for detached cycles: their cuts and flow rows go to ``pool`` for later solves.
 
     Returns
     -------
@@ -170,7 +178,14 @@ def solve_with_cuts(
         sub = model if columns is None else restrict_columns(model, columns)
     session = HighsSession(sub, options)
     session.stop_when = stop_when
-    flows = SessionFlows(graph, np.arange(n_vars) if columns is None else columns, session)
+    column_ids = np.arange(n_vars) if columns is None else columns
+    flows = SessionFlows(graph, column_ids, session)
+    if stop_when is not None:  # it judges the incumbent: only one closed path counts as one
+        session.usable = lambda x_sub: (
+            not detached_components_of_edges(
+                graph, column_ids[np.flatnonzero(x_sub[: column_ids.size] > 0.5)]
+            )
+        )
 
     def add_cuts(rows, lower, upper):
         session.add_rows(rows if columns is None else rows[:, columns], lower, upper)
@@ -192,18 +207,22 @@ def solve_with_cuts(
         components = detached_components(graph, x)
         if not components:
             break
+        rows, lower, upper = connectivity_cuts(graph, components)
+        pool.add(rows, lower, upper)  # for this session's next run and for later solves
+        flow_layers = pool.note_detached(graph, components)
+        if session.stopped_early:  # the caller has what it needs: no re-solve
+            message = "stopped on request; the detached cycles are cut off for later solves"
+            return _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds, message)
         if time.perf_counter() - start >= options.time_limit:
             return _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds)
-        rows, lower, upper = connectivity_cuts(graph, components)
         logger.info(
             "cut round %d: %d detached cycles, %d connectivity cuts",
             round_number,
             len(components),
             rows.shape[0],
         )
-        pool.add(rows, lower, upper)
         add_cuts(rows, lower, upper)
-        _cover(flows, pool.note_detached(graph, components))
+        _cover(flows, flow_layers)
         rounds = round_number
         connected = cheapest_connected(graph, session, columns, n_vars)
         if connected is not None:
@@ -239,16 +258,19 @@ def _offer(session: HighsSession, flows: SessionFlows, x_sub: np.ndarray) -> Non
     session.set_solution(start)
 
 
-def _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds) -> SolveResult:
-    """The time limit came between cut rounds: the cheapest connected solution known, if any.
+def _stopped_while_separating(
+    result, graph, session, columns, n_vars, start, rounds,
+    message: str = "time limit reached while separating detached cycles",
+) -> SolveResult:  # fmt: skip
+    """A run ended with detached cycles and gets no re-solve: the cheapest connected solution known.
 
-    HiGHS's bound stays valid (it holds without the newest cuts, so with them too); the
+    That is the case when the time limit came between cut rounds, or when ``stop_when`` stopped
+    the run. HiGHS's bound stays valid (it holds without the newest cuts, so with them too); the
     solution is the cheapest improving one that is one closed walk, or the start solution.
     """
     connected = cheapest_connected(graph, session, columns, n_vars)
     if connected is None and session.offered is not None:
         connected = expand(session.offered[1], columns, n_vars)
-    message = "time limit reached while separating detached cycles"
     if connected is None:
         return replace(
             result, status="no_solution", x=None, objective=math.inf, gap=math.nan,
