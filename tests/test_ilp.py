@@ -477,7 +477,8 @@ def test_a_mip_stopped_on_request_with_detached_cycles_keeps_its_bound_and_cuts_
     runs = []
 
     def stopped_with_a_detached_cycle(self):
-        runs.append(self.offered)
+        if self.stop_when is not None:  # the restricted MIP (not the repair MIP, which gives nothing here)
+            runs.append(self.offered)
         self.stopped_early = True
         value = float(costs @ detached)
         return SolveResult(

@@ -41,6 +41,7 @@ from spidermatch.solve.connectivity import (
 from spidermatch.solve.fixing import DualBound, dual_bound
 from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
 from spidermatch.solve.layer_flow import SessionFlows
+from spidermatch.solve.repair import repair_detached
 
 logger = logging.getLogger(__name__)
 
@@ -63,7 +64,7 @@ class CutPool:
     first_layer: np.ndarray | None = None
 
     def note_detached(self, graph: ProductGraph, components: list[np.ndarray]) -> set:
-        """Remember the layers of detached components for flow rows; returns all such layers.
+        """Remember the layers of detached components for flow rows; returns these layers.
 
         With ``first_layer`` (the curve's, shape (L,)) every layer of the same source vertex
         is added too: PES ties their out-flows, so a cycle cut off in one may move to another.
@@ -73,7 +74,7 @@ class CutPool:
             firsts = self.first_layer[sorted(layers)]
             layers |= set(np.flatnonzero(np.isin(self.first_layer, firsts)).tolist())
         self.flow_layers |= layers
-        return self.flow_layers
+        return layers
 
     def add(self, rows: sp.csr_matrix, lower: np.ndarray, upper: np.ndarray) -> None:
         """Remember new cut rows."""
@@ -209,12 +210,15 @@ def solve_with_cuts(
             break
         rows, lower, upper = connectivity_cuts(graph, components)
         pool.add(rows, lower, upper)  # for this session's next run and for later solves
-        flow_layers = pool.note_detached(graph, components)
-        if session.stopped_early:  # the caller has what it needs: no re-solve
-            message = "stopped on request; the detached cycles are cut off for later solves"
-            return _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds, message)
+        affected = pool.note_detached(graph, components)
         if time.perf_counter() - start >= options.time_limit:
             return _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds)
+        repaired = _repaired(sub, graph, column_ids, result.x, affected, pool, remaining(options, start))
+        if session.stopped_early:  # the caller has what it needs: no re-solve
+            message = "stopped on request; the detached cycles are cut off for later solves"
+            return _stopped_while_separating(
+                result, graph, session, columns, n_vars, start, rounds, message, repaired
+            )
         logger.info(
             "cut round %d: %d detached cycles, %d connectivity cuts",
             round_number,
@@ -222,16 +226,37 @@ def solve_with_cuts(
             rows.shape[0],
         )
         add_cuts(rows, lower, upper)
-        _cover(flows, flow_layers)
+        _cover(flows, pool.flow_layers)
         rounds = round_number
-        connected = cheapest_connected(graph, session, columns, n_vars)
-        if connected is not None:
-            restart = connected if columns is None else connected[columns]
-            logger.info("restarting from the best connected solution found so far, %.6g", sub.costs @ restart)
-            _offer(session, flows, restart)
+        restart = _cheapest_start(graph, session, columns, n_vars, repaired)
+        if restart is not None:
+            restart_sub = restart if columns is None else restart[columns]
+            logger.info("restarting from the best closed path known, %.6g", sub.costs @ restart_sub)
+            _offer(session, flows, restart_sub)
         result = session.run()  # the session gives each run only the time left
     x = expand(result.x, columns, n_vars)
     return replace(result, x=x, wall_time=time.perf_counter() - start, cut_rounds=rounds)
+
+
+def _repaired(sub, graph, column_ids, x_sub, affected, pool, options) -> np.ndarray | None:
+    """:func:`~spidermatch.solve.repair.repair_detached` as a full-model vector (n,), or None."""
+    if x_sub is None or options.time_limit <= 0:
+        return None
+    repaired = repair_detached(sub, graph, column_ids, x_sub, affected, pool, options)
+    if repaired is None:
+        return None
+    x = np.zeros(graph.n_edges)
+    x[column_ids] = repaired
+    return x
+
+
+def _cheapest_start(graph, session, columns, n_vars, repaired) -> np.ndarray | None:
+    """The cheaper of the best connected improving solution and ``repaired`` (full vectors, n)."""
+    candidates = [x for x in (cheapest_connected(graph, session, columns, n_vars), repaired) if x is not None]
+    if not candidates:
+        return None
+    cost = session.costs[: graph.n_edges if columns is None else columns.size]
+    return min(candidates, key=lambda x: float(cost @ (x if columns is None else x[columns])))
 
 
 def _cover(flows: SessionFlows, layers) -> None:
@@ -260,15 +285,16 @@ def _offer(session: HighsSession, flows: SessionFlows, x_sub: np.ndarray) -> Non
 
 def _stopped_while_separating(
     result, graph, session, columns, n_vars, start, rounds,
-    message: str = "time limit reached while separating detached cycles",
+    message: str = "time limit reached while separating detached cycles", repaired=None,
 ) -> SolveResult:  # fmt: skip
     """A run ended with detached cycles and gets no re-solve: the cheapest connected solution known.
 
     That is the case when the time limit came between cut rounds, or when ``stop_when`` stopped
     the run. HiGHS's bound stays valid (it holds without the newest cuts, so with them too); the
-    solution is the cheapest improving one that is one closed walk, or the start solution.
+    solution is the cheapest of the improving ones that are one closed walk and ``repaired``
+    (a full vector, see :mod:`spidermatch.solve.repair`), or the start solution.
     """
-    connected = cheapest_connected(graph, session, columns, n_vars)
+    connected = _cheapest_start(graph, session, columns, n_vars, repaired)
     if connected is None and session.offered is not None:
         connected = expand(session.offered[1], columns, n_vars)
     if connected is None:

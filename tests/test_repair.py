@@ -1,0 +1,52 @@
+import numpy as np
+import pytest
+
+from spidermatch.correspondence import active_edges, check_solution
+from spidermatch.curve import SpiderCurve
+from spidermatch.ilp import build_model
+from spidermatch.solve.connectivity import connectivity_cuts, detached_components
+from spidermatch.solve.highs import SolverOptions
+from spidermatch.solve.repair import repair_detached, window_layers
+from spidermatch.solve.strategies import CutPool, solve_plain
+from tests.test_ilp import creature_instance, square_instance_with_detached_copy
+
+EXACT = SolverOptions(mip_rel_gap=0.0)
+
+
+def passes_checker(curve, graph, x):
+    undirected = graph.target_edges[: graph.target_edges.shape[0] // 2]
+    return check_solution(curve.vertices, undirected, graph.n_target, active_edges(graph, x)).ok
+
+
+def test_window_layers_wrap_around_the_curve():
+    near = window_layers([0, 5], 10, window=1)
+    assert np.flatnonzero(near).tolist() == [0, 1, 4, 5, 6, 9]
+
+
+def test_a_solution_with_a_detached_cycle_is_repaired_into_a_checked_closed_path():
+    graph, costs, optimum, detached = square_instance_with_detached_copy()
+    curve = SpiderCurve(np.array([0, 1, 0, 2]), 3)
+    model = build_model(graph, curve, costs)
+    components = detached_components(graph, detached)
+    pool = CutPool(first_layer=curve.first_layer)
+    pool.add(*connectivity_cuts(graph, components))
+    affected = pool.note_detached(graph, components)
+    everything = np.arange(graph.n_edges)
+    repaired = repair_detached(model, graph, everything, detached, affected, pool, EXACT)
+    assert repaired is not None and detached_components(graph, repaired) == []
+    assert passes_checker(curve, graph, repaired)
+    # the window covers this 4-layer curve whole, so the repair MIP finds the optimum (within its gap)
+    assert costs @ repaired == pytest.approx(costs @ optimum, rel=1e-3)
+
+
+def test_the_repair_keeps_the_path_outside_the_windows():
+    curve, graph, model = creature_instance(24, seed=3)
+    solved = solve_plain(model, graph, curve, EXACT)
+    far = graph.n_layers // 2
+    pool = CutPool()
+    repaired = repair_detached(model, graph, np.arange(graph.n_edges), solved.x, [far], pool, EXACT)
+    assert repaired is not None and passes_checker(curve, graph, repaired)
+    layer = np.arange(graph.n_edges) // graph.block_size
+    outside = ~window_layers([far], graph.n_layers)[layer]
+    assert set(np.flatnonzero((repaired > 0.5) & outside)) <= set(np.flatnonzero(solved.x > 0.5))
+    assert model.costs @ repaired == pytest.approx(model.costs @ solved.x, rel=1e-3)  # it was optimal
