@@ -50,3 +50,22 @@ def test_the_repair_keeps_the_path_outside_the_windows():
     outside = ~window_layers([far], graph.n_layers)[layer]
     assert set(np.flatnonzero((repaired > 0.5) & outside)) <= set(np.flatnonzero(solved.x > 0.5))
     assert model.costs @ repaired == pytest.approx(model.costs @ solved.x, rel=1e-3)  # it was optimal
+
+
+def test_a_run_stops_in_time_for_a_repair_only_when_its_best_solution_has_detached_cycles():
+    import time
+    from types import SimpleNamespace
+
+    from spidermatch.solve.strategies import _leaving_time_to_repair
+
+    session = SimpleNamespace(best_usable=415.2, best_unusable=2.01)
+    late = _leaving_time_to_repair(session, None, SolverOptions(time_limit=10.0), time.perf_counter() - 9.0)
+    early = _leaving_time_to_repair(session, None, SolverOptions(time_limit=100.0), time.perf_counter())
+    assert late(2.01, 2.0) and not early(2.01, 2.0)  # 10 s limit: the last 2 s are the repair's
+    session.best_unusable = 500.0  # the best solution is a closed path: nothing to repair
+    assert not late(415.2, 2.0)
+    asked = _leaving_time_to_repair(
+        session, lambda *_: True, SolverOptions(time_limit=100.0), time.perf_counter()
+    )
+    assert asked(415.2, 2.0)  # the caller's own stop still counts
+    assert _leaving_time_to_repair(session, None, SolverOptions(), 0.0) is None  # no limit: nothing to leave

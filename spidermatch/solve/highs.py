@@ -254,6 +254,7 @@ class HighsSession:
         self.stopped_early = False  # the last run was stopped by stop_when
         self.usable = None  # x (n,) -> bool: may an improving solution be used (e.g. one closed path)?
         self.best_usable = math.inf  # cheapest usable solution known (start or improving)
+        self.best_unusable = math.inf  # cheapest improving solution that was not usable
         default_label = "LP relaxation" if relax else f"MIP over {model.n_vars} columns"
         self.progress = ProgressLog(label or default_label)
         self.highs.setCallback(self._on_callback, None)
@@ -288,8 +289,11 @@ class HighsSession:
             objective = float(data_out.objective_function_value)
             self.improving.append((objective, x))
             del self.improving[:-KEEP_IMPROVING]  # the most recent ones (later runs may report dearer ones)
-            if self.usable is not None and objective < self.best_usable and self.usable(x):
-                self.best_usable = objective
+            if self.usable is not None and objective < min(self.best_usable, self.best_unusable):
+                if self.usable(x):
+                    self.best_usable = objective
+                else:
+                    self.best_unusable = objective
 
     def set_solution(self, x: np.ndarray) -> None:
         """Offer a feasible 0/1 vector (n,) as a starting incumbent."""

@@ -28,7 +28,7 @@ logger = logging.getLogger(__name__)
 
 REPAIR_WINDOW = 3  # layers on each side of an affected layer whose columns the repair frees
 REPAIR_TIME_S = 30.0  # the repair MIP's time limit at most ...
-REPAIR_TIME_SHARE = 0.2  # ... and at most this share of the time left
+REPAIR_TIME_SHARE = 0.2  # ... and, between cut rounds, at most this share of the time left
 REPAIR_GAP = 1e-3  # a start, not a proof: stop within this relative gap
 
 
@@ -65,7 +65,7 @@ def repair_detached(
     pool : spidermatch.solve.strategies.CutPool
         Its connectivity cuts go into the repair MIP.
     options : SolverOptions
-        Its time limit is what the caller has left.
+        Its time limit is the repair's (callers give it at most ``REPAIR_TIME_S``).
 
     """
     k = column_ids.size
@@ -73,8 +73,7 @@ def repair_detached(
     near = window_layers(affected_layers, graph.n_layers)
     positions = np.flatnonzero(used | near[column_ids // graph.block_size])
     local_ids = column_ids[positions]
-    time_limit = min(REPAIR_TIME_S, REPAIR_TIME_SHARE * options.time_limit)
-    local_options = replace(options, time_limit=time_limit, mip_rel_gap=max(options.mip_rel_gap, REPAIR_GAP))
+    local_options = replace(options, mip_rel_gap=max(options.mip_rel_gap, REPAIR_GAP))
     session = HighsSession(restrict_columns(model, positions), local_options, label="repair MIP")
     if pool.rows is not None:
         session.add_rows(pool.rows[:, local_ids], pool.lower, pool.upper)
