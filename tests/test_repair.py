@@ -6,7 +6,7 @@ from spidermatch.curve import SpiderCurve
 from spidermatch.ilp import build_model
 from spidermatch.solve.connectivity import connectivity_cuts, detached_components
 from spidermatch.solve.highs import SolverOptions
-from spidermatch.solve.repair import repair_detached, window_layers
+from spidermatch.solve.repair import freed_layers, repair_detached, window_layers
 from spidermatch.solve.strategies import CutPool, solve_plain
 from tests.test_ilp import creature_instance, square_instance_with_detached_copy
 
@@ -69,3 +69,14 @@ def test_a_run_stops_in_time_for_a_repair_only_when_its_best_solution_has_detach
     )
     assert asked(415.2, 2.0)  # the caller's own stop still counts
     assert _leaving_time_to_repair(session, None, SolverOptions(), 0.0) is None  # no limit: nothing to leave
+
+
+def test_freed_layers_also_free_the_windows_of_the_layers_pes_ties_to_them():
+    first_layer = np.arange(20)
+    first_layer[15] = 2  # layer 15 repeats layer 2's source vertex
+    freed = freed_layers([0], first_layer, 20, window=2)  # window 18..2 holds layer 2, so 13..17 too
+    assert np.flatnonzero(freed).tolist() == [0, 1, 2, 13, 14, 15, 16, 17, 18, 19]
+    first_layer[14] = 5  # and layer 14 repeats layer 5's vertex: the second round frees 3..7
+    freed = freed_layers([0], first_layer, 20, window=2)
+    assert np.flatnonzero(freed).tolist() == [0, 1, 2, 3, 4, 5, 6, 7, 13, 14, 15, 16, 17, 18, 19]
+    assert np.flatnonzero(freed_layers([0], None, 20, window=2)).tolist() == [0, 1, 2, 18, 19]

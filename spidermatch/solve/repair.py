@@ -7,13 +7,15 @@ had to restart from 415.2. The repair keeps the solution's own edges and frees e
 the restricted model in a few layers around each layer with a detached cycle (and around the
 other layers of its source vertex, which PES ties to it); a small MIP over those columns, with
 the flow rows of :mod:`spidermatch.solve.layer_flow` in the affected layers, re-routes the path
-there. Its answer is only a start for the re-solve: it proves nothing and is checked to be one
-closed walk before it is used.
+there (the windows also cover the layers PES ties to the freed ones, and widen once if the
+first try has no closed path). Its answer is only a start for the re-solve: it proves nothing
+and is checked to be one closed walk before it is used.
 """
 
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -26,17 +28,34 @@ from spidermatch.solve.layer_flow import SessionFlows
 
 logger = logging.getLogger(__name__)
 
-REPAIR_WINDOW = 3  # layers on each side of an affected layer whose columns the repair frees
+REPAIR_WINDOWS = (3, 12)  # layers on each side of an affected layer whose columns the repair frees:
+# the first try, and a wider one if the first has no closed path
 REPAIR_TIME_S = 30.0  # the repair MIP's time limit at most ...
 REPAIR_TIME_SHARE = 0.2  # ... and, between cut rounds, at most this share of the time left
 REPAIR_GAP = 1e-3  # a start, not a proof: stop within this relative gap
 
 
-def window_layers(layers, n_layers: int, window: int = REPAIR_WINDOW) -> np.ndarray:
+def window_layers(layers, n_layers: int, window: int = REPAIR_WINDOWS[0]) -> np.ndarray:
     """Mask (L,) of the layers within ``window`` positions of any of ``layers`` (cyclically)."""
     near = np.zeros(n_layers, dtype=bool)
     for layer in layers:
         near[(int(layer) + np.arange(-window, window + 1)) % n_layers] = True
+    return near
+
+
+def freed_layers(layers, first_layer: np.ndarray | None, n_layers: int, window: int) -> np.ndarray:
+    """Mask (L,) of the layers a repair frees: windows around ``layers``, closed under PES twice.
+
+    A freed layer whose source vertex recurs elsewhere on the curve is tied by PES to that
+    layer; were it kept fixed, the freed one could not move either. So the windows of those
+    layers are freed as well (twice over; ``first_layer`` (L,) is the curve's).
+    """
+    near = window_layers(layers, n_layers, window)
+    if first_layer is None:
+        return near
+    for _ in range(2):
+        tied = np.flatnonzero(np.isin(first_layer, np.unique(first_layer[near])) & ~near)
+        near |= window_layers(tied, n_layers, window)
     return near
 
 
@@ -61,18 +80,36 @@ def repair_detached(
     x_sub : np.ndarray, shape (k,) or longer
         The solution with detached cycles (entries after the first k are ignored).
     affected_layers : iterable of int
-        Layers whose columns are freed, with ``REPAIR_WINDOW`` layers on each side.
+        Layers whose columns are freed, with the layers around them (:func:`freed_layers`;
+        first ``REPAIR_WINDOWS[0]`` on each side, then, if that has no closed path, the next).
     pool : spidermatch.solve.strategies.CutPool
-        Its connectivity cuts go into the repair MIP.
+        Its connectivity cuts and flow layers go into the repair MIP; its ``first_layer``
+        ties layers of one source vertex.
     options : SolverOptions
         Its time limit is the repair's (callers give it at most ``REPAIR_TIME_S``).
 
     """
     k = column_ids.size
     used = np.asarray(x_sub[:k]) > 0.5
-    near = window_layers(affected_layers, graph.n_layers)
-    positions = np.flatnonzero(used | near[column_ids // graph.block_size])
-    local_ids = column_ids[positions]
+    layer_of = column_ids // graph.block_size
+    deadline = time.perf_counter() + options.time_limit
+    for window in REPAIR_WINDOWS:
+        left = deadline - time.perf_counter()
+        if left <= 0:
+            return None
+        near = freed_layers(affected_layers, pool.first_layer, graph.n_layers, window)
+        positions = np.flatnonzero(used | near[layer_of])
+        local_options = replace(options, time_limit=left)
+        local_x = _local_mip(model, graph, column_ids[positions], positions, pool, local_options)
+        if local_x is not None:
+            repaired = np.zeros(k)
+            repaired[positions] = local_x
+            return repaired
+    return None
+
+
+def _local_mip(model, graph, local_ids, positions, pool, options) -> np.ndarray | None:
+    """The repair MIP over the columns at ``positions``: a closed path (len(positions),) or None."""
     local_options = replace(options, mip_rel_gap=max(options.mip_rel_gap, REPAIR_GAP))
     session = HighsSession(restrict_columns(model, positions), local_options, label="repair MIP")
     if pool.rows is not None:
@@ -80,17 +117,15 @@ def repair_detached(
     SessionFlows(graph, local_ids, session).cover(pool.flow_layers)
     result = session.run()
     if result.x is None:
-        logger.info("repair: no closed path near the solution (%s)", result.message)
+        logger.info("repair over %d columns: no closed path (%s)", positions.size, result.message)
         return None
     local_x = result.x[: positions.size]
     if detached_components_of_edges(graph, local_ids[local_x > 0.5]):
         return None
-    repaired = np.zeros(k)
-    repaired[positions] = local_x
     logger.info(
         "repair: a closed path of cost %.6g over %d columns (%.1f s)",
         result.objective,
         positions.size,
         result.wall_time,
     )
-    return repaired
+    return local_x
