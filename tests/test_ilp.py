@@ -494,7 +494,7 @@ def test_a_mip_stopped_on_request_with_detached_cycles_keeps_its_bound_and_cuts_
     assert result.status == "feasible" and np.array_equal(result.x, optimum)  # the connected start
     assert result.bound == pytest.approx(costs @ detached - 1.0)  # the stopped run's bound still holds
     assert pool.rows is not None and (pool.rows @ detached < pool.lower).any()  # cut for later solves
-    assert pool.flow_layers and "stopped on request" in result.message
+    assert pool.flow_layers and "stopped early" in result.message
 
 
 def test_stop_when_judges_the_cheapest_closed_path_not_an_incumbent_with_detached_cycles():

@@ -218,8 +218,8 @@ def solve_with_cuts(
         budget = left.time_limit if session.stopped_early else REPAIR_TIME_SHARE * left.time_limit
         left = replace(left, time_limit=min(REPAIR_TIME_S, budget))
         repaired = _repaired(sub, graph, column_ids, result.x, affected, pool, left)
-        if session.stopped_early:  # the caller has what it needs: no re-solve
-            message = "stopped on request; the detached cycles are cut off for later solves"
+        if session.stopped_early:  # the caller has what it needs, or the time is the repair's
+            message = "stopped early (on request, or to leave time for the repair); detached cycles cut off"
             return _stopped_while_separating(
                 result, graph, session, columns, n_vars, start, rounds, message, repaired
             )
