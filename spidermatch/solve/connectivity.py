@@ -43,10 +43,9 @@ def detached_components(graph: ProductGraph, x: np.ndarray) -> list[np.ndarray]:
 def detached_components_of_edges(graph: ProductGraph, edge_ids: np.ndarray) -> list[np.ndarray]:
     """:func:`detached_components` of the solution that uses exactly the edges ``edge_ids`` (k,)."""
     tuples = graph.edge_tuples(edge_ids)
-    crossing_into_0 = tuples[(tuples[:, 4] != INTRA) & (tuples[:, 2] == 0)]
-    if len(crossing_into_0) != 1:
+    walk = walk_through_layer_0(tuples)
+    if walk is None:
         return []  # not a CYC-feasible solution; nothing to separate here
-    walk = _euler_walk(tuples, (0, int(crossing_into_0[0, 3])))
     rest = np.setdiff1d(np.arange(len(tuples)), walk)
     if rest.size == 0:
         return []
@@ -58,6 +57,24 @@ def detached_components_of_edges(graph: ProductGraph, edge_ids: np.ndarray) -> l
     )
     n_components, labels = connected_components(adjacency, directed=False)
     return [nodes[labels == c] for c in range(n_components)]
+
+
+def walk_through_layer_0(tuples: np.ndarray) -> list[int] | None:
+    """Indices of ``tuples`` (N, 5) on the closed walk through the one entry of layer 0, in order.
+
+    None if the edges do not cross into layer 0 exactly once. Edges off that walk (detached
+    cycles) are not in the list.
+    """
+    crossing_into_0 = tuples[(tuples[:, 4] != INTRA) & (tuples[:, 2] == 0)]
+    if len(crossing_into_0) != 1:
+        return None
+    return _euler_walk(tuples, (0, int(crossing_into_0[0, 3])))
+
+
+def is_closed_path(graph: ProductGraph, x_sub: np.ndarray, columns: np.ndarray | None = None) -> bool:
+    """Whether x_sub (k,) over the edge ids ``columns`` (k,; all edges if None) has no detached cycle."""
+    used = np.flatnonzero(np.asarray(x_sub) > 0.5)
+    return not detached_components_of_edges(graph, used if columns is None else columns[used])
 
 
 def connectivity_cuts(

@@ -32,8 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from spidermatch.correspondence import _euler_walk
 from spidermatch.product_graph import INTRA, ProductGraph
+from spidermatch.solve.connectivity import walk_through_layer_0
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,10 +131,9 @@ def flow_values(graph: ProductGraph, columns: np.ndarray, x_sub: np.ndarray, flo
     """
     used = np.flatnonzero(x_sub > 0.5)
     tuples = graph.edge_tuples(columns[used])
-    crossing_into_0 = tuples[(tuples[:, 4] != INTRA) & (tuples[:, 2] == 0)]
-    if len(crossing_into_0) != 1:
+    order = walk_through_layer_0(tuples)
+    if order is None:
         raise ValueError("the solution does not cross into layer 0 exactly once")
-    order = _euler_walk(tuples, (0, int(crossing_into_0[0, 3])))
     if len(order) != len(tuples):
         raise ValueError("the solution is not one closed walk")
     walk = used[np.asarray(order, dtype=np.int64)]

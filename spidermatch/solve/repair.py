@@ -22,7 +22,7 @@ import numpy as np
 
 from spidermatch.ilp import IlpModel, restrict_columns
 from spidermatch.product_graph import ProductGraph
-from spidermatch.solve.connectivity import detached_components_of_edges
+from spidermatch.solve.connectivity import is_closed_path
 from spidermatch.solve.highs import HighsSession, SolverOptions
 from spidermatch.solve.layer_flow import SessionFlows
 
@@ -120,7 +120,7 @@ def _local_mip(model, graph, local_ids, positions, pool, options) -> np.ndarray 
         logger.info("repair over %d columns: no closed path (%s)", positions.size, result.message)
         return None
     local_x = result.x[: positions.size]
-    if detached_components_of_edges(graph, local_ids[local_x > 0.5]):
+    if not is_closed_path(graph, local_x, local_ids):
         return None
     logger.info(
         "repair: a closed path of cost %.6g over %d columns (%.1f s)",

@@ -35,7 +35,7 @@ from spidermatch.product_graph import ProductGraph
 from spidermatch.solve.connectivity import (
     connectivity_cuts,
     detached_components,
-    detached_components_of_edges,
+    is_closed_path,
     two_cycle_components,
 )
 from spidermatch.solve.fixing import DualBound, dual_bound
@@ -122,9 +122,9 @@ def cheapest_connected(
     added and can restart the next run of the session as its incumbent.
     """
     for _, x_sub in sorted(session.improving, key=lambda found: found[0]):
-        x = np.round(expand(x_sub, columns, n_vars))
-        if not detached_components(graph, x):
-            return x
+        k = n_vars if columns is None else columns.size
+        if is_closed_path(graph, x_sub[:k], columns):  # checked on the sub-model, expanded once
+            return np.round(expand(x_sub, columns, n_vars))
     return None
 
 
@@ -181,11 +181,7 @@ def solve_with_cuts(
     column_ids = np.arange(n_vars) if columns is None else columns
     flows = SessionFlows(graph, column_ids, session)
     if imposes_paths(sub):  # only one closed path counts as an incumbent (for stop_when and the repair)
-        session.usable = lambda x_sub: (
-            not detached_components_of_edges(
-                graph, column_ids[np.flatnonzero(x_sub[: column_ids.size] > 0.5)]
-            )
-        )
+        session.usable = lambda x_sub: is_closed_path(graph, x_sub[: column_ids.size], columns)
     session.stop_when = _leaving_time_to_repair(session, stop_when, options, start)
 
     def add_cuts(rows, lower, upper):
