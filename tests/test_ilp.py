@@ -41,12 +41,12 @@ def simple_paths(start, neighbours):
         stack.extend(path + [b] for b in neighbours[path[-1]] if b not in path)
 
 
-def brute_force(curve, graph, costs):
-    """Cheapest single closed walk passing the independent checker (within-layer walks simple)."""
+def closed_walks(curve, graph):
+    """Edge-id lists of every closed walk through all layers (within-layer walks simple), unchecked."""
     neighbours = {y: [] for y in range(graph.n_target)}
     for a, b in graph.target_edges.tolist():
         neighbours[a].append(b)
-    candidates = []
+    walks = []
 
     def layer_options(layer, entry):
         for path in simple_paths(entry, neighbours):
@@ -59,17 +59,32 @@ def brute_force(curve, graph, costs):
     def descend(layer, entry, start, chosen):
         if layer == curve.length:
             if entry == start:
-                candidates.append((costs[chosen].sum(), list(chosen)))
+                walks.append(list(chosen))
             return
         for ids, exit_vertex in layer_options(layer, entry):
             descend(layer + 1, exit_vertex, start, chosen + ids)
 
     for start in range(graph.n_target):
         descend(0, start, start, [])
+    return walks
+
+
+def checked_walks(curve, graph):
+    """The closed walks of :func:`closed_walks` that pass the independent checker."""
     target_edges = graph.target_edges[: graph.target_edges.shape[0] // 2]
-    for cost, ids in sorted(candidates, key=lambda c: c[0]):
+    return [
+        ids
+        for ids in closed_walks(curve, graph)
+        if check_solution(curve.vertices, target_edges, graph.n_target, graph.edge_tuples(np.array(ids))).ok
+    ]
+
+
+def brute_force(curve, graph, costs):
+    """Cheapest single closed walk passing the independent checker (within-layer walks simple)."""
+    target_edges = graph.target_edges[: graph.target_edges.shape[0] // 2]
+    for ids in sorted(closed_walks(curve, graph), key=lambda ids: costs[ids].sum()):
         if check_solution(curve.vertices, target_edges, graph.n_target, graph.edge_tuples(np.array(ids))).ok:
-            return cost
+            return costs[ids].sum()
     return None
 
 

@@ -23,8 +23,10 @@ holds only what defines the columns and produces any of them on demand:
 3. **Growing MIPs.** With the final duals y and bound L = L(y) (if the LP solution is
    integral, one closed path and within the target gap of L, it is certified at once), the
    last round's pricing pass keeps the columns of reduced cost up to ``PRICED_SPAN |L|``
-   (:func:`within` slices it for each step); a MIP at the target gap over the columns of
-   reduced cost at most a threshold t (plus the LP support, the stay seed and the
+   (:func:`within` slices it for each step) and replaces each reduced cost by the column's
+   *path reduced cost* R_j >= r_j (:mod:`spidermatch.solve.path_costs`: the least reduced
+   cost of a whole closed path through j); a MIP at the target gap over the columns of
+   path reduced cost at most a threshold t (plus the LP support, the stay seed and the
    incumbent's columns), started from the incumbent U. If U <= L + t, every column that
    a solution of cost <= U could use is in the MIP (reduced-cost fixing against U) and its
    proof covers the full model. Otherwise t grows to U - L if that is at most 8 t, else to
@@ -40,7 +42,10 @@ as in :mod:`spidermatch.solve.fixing` and then, for **any** such ``y``,
 *all* columns j of the full model (built or not: the pricing pass generates each
 column's cost and coefficients exactly as ``build_model`` would) is a lower bound on
 every feasible x in [0, 1]^n; no property of the restricted LP or of HiGHS's
-tolerances is used. A solution that uses column j costs at least ``L(y) + max(r_j, 0)``.
+tolerances is used. A solution that uses column j costs at least ``L(y) + max(r_j, 0)``,
+and at least ``L(y) + R_j`` with the path reduced cost R_j >= max(r_j, 0); below, r_j stands
+for R_j. On TOSCA horse5 -> horse0 at 1000 faces (label-free features, 20 adaptation steps)
+the last MIP shrank from 230 k to 74 k columns, and certification from 340 s to 88 s.
 A MIP runs over a set C (with every row of the full model that C touches or that 0
 violates: the others read 0 and hold for every x over C) that contains
 every column with ``r_j <= t``; its bound B_C holds for every solution using columns of
@@ -70,6 +75,7 @@ from spidermatch.product_graph import INTRA, ProductGraph
 from spidermatch.solve.connectivity import detached_components
 from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
+from spidermatch.solve.path_costs import path_reduced_costs
 from spidermatch.solve.path_seed import cheapest_closed_path, path_plausible
 from spidermatch.solve.strategies import (
     LP_EXTRA,
@@ -106,7 +112,8 @@ class Pricing:
     columns : np.ndarray, shape (k,)
         Sorted edge ids with reduced cost at most ``cutoff``.
     reduced : np.ndarray, shape (k,)
-        Their reduced costs.
+        Their reduced costs, or after :func:`by_path` their path reduced costs: a solution
+        using column j costs at least ``bound + reduced[j]`` (if positive).
     cutoff : float
     min_outside : float
         Smallest reduced cost of the columns not selected; inf if none.
@@ -144,6 +151,22 @@ def price(lazy: LazyModel, y: np.ndarray, threshold: float) -> Pricing:
             min_outside = min(min_outside, float(reduced[~keep].min()))
     bound = lazy.row_term(y) + math.fsum(negative_sums)
     return Pricing(bound, np.concatenate(kept_ids), np.concatenate(kept_reduced), threshold, min_outside)
+
+
+def by_path(lazy: LazyModel, priced: Pricing) -> Pricing:
+    """The same pass with path reduced costs (:mod:`spidermatch.solve.path_costs`) in place of ``reduced``.
+
+    Every column of the pass keeps its id; ``min_outside`` stays valid, as a column outside has
+    path reduced cost at least its reduced cost, above the cutoff.
+    """
+    start = time.perf_counter()
+    path_costs = path_reduced_costs(lazy.graph, priced.columns, priced.reduced, priced.cutoff)
+    logger.info(
+        "colgen: path reduced costs of %d columns (%.1f s); %d of them at most the cutoff %.3g",
+        priced.columns.size, time.perf_counter() - start, int(np.sum(path_costs <= priced.cutoff)),
+        priced.cutoff,
+    )  # fmt: skip
+    return replace(priced, reduced=path_costs)
 
 
 def stay_seed(lazy: LazyModel) -> np.ndarray:
@@ -441,10 +464,10 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         incumbent[stay] = 1.0
     base = np.union1d(lp.support(), stay)
     threshold, best = first_threshold(lp.bound, lazy.graph.n_layers), None
-    priced = lp.pricing
+    priced = by_path(lazy, lp.pricing)
     for step in range(1, MAX_STEPS + 1):
         if threshold > priced.cutoff:
-            priced = price(lazy, lp.y, threshold)
+            priced = by_path(lazy, price(lazy, lp.y, threshold))
         selection = within(priced, threshold)
         columns = np.union1d(selection.columns, base)
         if incumbent is not None:
