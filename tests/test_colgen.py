@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -177,6 +179,43 @@ def test_a_mip_stopped_above_its_outside_bound_widens_and_still_certifies_the_op
     assert solved.objective == pytest.approx(plain.objective, rel=1e-9)
     assert solved.bound <= plain.objective * (1 + 1e-9)
     assert_one_checked_path(lazy, solved.x)
+
+
+def test_no_wider_mip_starts_with_too_little_time_left_and_the_answer_stays_honest(monkeypatch):
+    """As above, but with too little time for step 2: the incumbent, a valid bound, `feasible`."""
+    import math
+
+    import spidermatch.solve.colgen as colgen
+    from spidermatch.solve.highs import SolveResult
+
+    lazy = creature_lazy(24, 3)
+    plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
+    calls = []
+
+    def first_stopped(lazy, columns, options, incumbent, *rest):
+        calls.append(columns.size)
+        start = float(lazy.costs(np.flatnonzero(incumbent > 0.5)).sum())
+        return SolveResult(
+            "feasible", incumbent, start, -math.inf, math.nan, 0.0, columns.size, 1, 1, "stopped"
+        )
+
+    monkeypatch.setattr(colgen, "_restricted_mip", first_stopped)
+    monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)
+    monkeypatch.setattr(colgen, "LAST_STEP_MIN_S", 1e6)
+    solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, replace(EXACT, time_limit=600.0))
+    assert len(calls) == 1
+    assert solved.status == "feasible" and "too little for a wider MIP" in solved.message
+    assert solved.bound <= plain.objective * (1 + 1e-9) <= solved.objective * (1 + 1e-9)
+    assert solved.gap == pytest.approx((solved.objective - solved.bound) / abs(solved.objective), rel=1e-6)
+
+
+def test_a_further_step_needs_five_seconds_and_five_percent_of_the_limit():
+    from spidermatch.solve.colgen import too_little_time_for_a_step
+
+    assert too_little_time_for_a_step(replace(EXACT, time_limit=600.0), 29.0)
+    assert not too_little_time_for_a_step(replace(EXACT, time_limit=600.0), 31.0)
+    assert too_little_time_for_a_step(replace(EXACT, time_limit=20.0), 4.9)
+    assert not too_little_time_for_a_step(EXACT, 1.0)  # no time limit
 
 
 @pytest.mark.parametrize(

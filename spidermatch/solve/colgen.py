@@ -99,6 +99,9 @@ PRICED_SPAN = 0.02  # one pricing pass keeps the columns up to this times |L(y)|
 GROWTH = 4.0  # each further MIP: the threshold grows by at most this factor (or to U - L(y))
 JUMP = 8.0  # ... unless U - L(y) is within this factor: then straight to U - L(y)
 MAX_STEPS = 10
+LAST_STEP_MIN_S = 5.0  # a further MIP starts only with at least this much time left ...
+LAST_STEP_MIN_SHARE = 0.05  # ... and this share of the time limit (4000 faces: one started with
+# seconds left spent 20 s past the limit building and loading 1.8 M columns)
 
 
 @dataclass(frozen=True, eq=False)
@@ -490,9 +493,12 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         )  # fmt: skip
         if certified:
             return replace(best, status="optimal")
-        out_of_time = remaining(options, start).time_limit <= 0.0
-        if out_of_time or result.status not in ("optimal", "feasible"):
+        if result.status not in ("optimal", "feasible"):
             return replace(best, status="feasible")
+        seconds_left = remaining(options, start).time_limit
+        if too_little_time_for_a_step(options, seconds_left):
+            message = f"not certified: {seconds_left:.1f} s left, too little for a wider MIP ({best.message})"
+            return replace(best, status="feasible", message=message)
         if result.status == "feasible":  # time was left: stopped by stop_when
             logger.info(
                 "colgen step %d: MIP bound %.8g above what it could certify: widening", step, result.bound
@@ -501,6 +507,17 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     if best is None:
         return replace(result, bound=lp.bound, gap=math.nan)
     return replace(best, status="feasible", message=f"not certified within {MAX_STEPS} steps")
+
+
+def too_little_time_for_a_step(options: SolverOptions, seconds_left: float) -> bool:
+    """Whether a further MIP step should not start: too little of the time limit is left.
+
+    A wider MIP cannot certify in a few seconds, and building and loading it does not stop
+    at the time limit.
+    """
+    if not math.isfinite(options.time_limit):
+        return False
+    return seconds_left < max(LAST_STEP_MIN_S, LAST_STEP_MIN_SHARE * options.time_limit)
 
 
 def first_threshold(bound: float, n_layers: int) -> float:
