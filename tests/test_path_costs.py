@@ -88,3 +88,37 @@ def test_path_reduced_costs_bound_the_optimum_through_each_column(seed):
         assert result.status == "optimal" and result.x[priced.columns[k]] > 0.5
         assert result.objective + reward >= priced.bound + path_costs[k] - 1e-7
         assert path_costs[k] > max(priced.reduced[k], 0.0) + 1e-6  # stronger than reduced-cost fixing here
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_dual_bound_along_paths_bounds_every_checked_walk_and_keeps_columns_above_the_cutoff(seed):
+    """rcfix's form (full reduced-cost vector): brute force over the walks of a tiny instance."""
+    from spidermatch.solve.fixing import dual_bound
+
+    lazy = tiny_lazy([0, 1, 0, 2], seed)
+    model = lazy.full_model()
+    rng = np.random.default_rng(seed)
+    walks = checked_walks(lazy.curve, lazy.graph)
+    for y in [lp_duals(lazy), rng.normal(0, 0.3, model.n_rows)]:
+        dual = dual_bound(model, y)
+        for cutoff in (0.0, 0.3, 5.0):
+            along = dual.along_paths(lazy.graph, cutoff)
+            assert along.bound == dual.bound
+            above = dual.reduced > cutoff
+            np.testing.assert_array_equal(along.reduced[above], dual.reduced[above])
+            assert (along.column_bounds() >= dual.column_bounds() - 1e-12).all()
+            for ids in walks:
+                cost = lazy.costs(np.array(ids)).sum()
+                assert cost >= along.column_bounds()[ids].max() - 1e-9
+
+
+def test_by_path_leaves_a_model_without_closed_paths_alone():
+    from spidermatch.lazy_model import LazyModel
+
+    lazy = creature_lazy(18, 3)
+    no_con = LazyModel(
+        lazy.graph, lazy.curve, lazy.source_verts, lazy.target_verts, lazy.vertex_costs, ("CYC", "PES")
+    )
+    y = np.zeros(no_con.n_rows)
+    priced = price(no_con, y, 0.5)
+    assert by_path(no_con, priced) is priced

@@ -11,7 +11,9 @@ where ``b_i(y)`` is the row bound the sign of ``y_i`` selects. So ``L(y)`` is a 
 lower bound whatever solver produced ``y`` and however inexact it is: multipliers are
 sign-corrected and the bound is recomputed here, not taken from the solver. If
 ``x_j = 1`` the same argument gives ``c^T x >= L(y) + max(r_j, 0)``, hence no solution
-of cost at most ``U`` uses a column with ``L(y) + r_j > U`` (reduced-cost fixing).
+of cost at most ``U`` uses a column with ``L(y) + r_j > U`` (reduced-cost fixing). Where
+every solution is one closed path, :meth:`DualBound.along_paths` strengthens ``r_j`` to the
+column's path reduced cost (:mod:`spidermatch.solve.path_costs`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from spidermatch.ilp import IlpModel
+from spidermatch.product_graph import ProductGraph
+from spidermatch.solve.path_costs import path_reduced_costs
 
 
 @dataclass(frozen=True, eq=False)
@@ -33,7 +37,9 @@ class DualBound:
     bound : float
         ``L(y)``, a lower bound on ``c^T x`` over every feasible ``x`` in [0, 1]^n.
     reduced : np.ndarray, shape (n,)
-        Reduced costs ``r = c - A^T y``.
+        Reduced costs ``r = c - A^T y``, or after :meth:`along_paths` partly path reduced
+        costs: either way a solution that uses column j costs at least
+        ``bound + max(reduced[j], 0)``.
 
     """
 
@@ -47,6 +53,17 @@ class DualBound:
     def surviving_columns(self, upper_bound: float) -> np.ndarray:
         """Indices of the columns a solution of cost <= ``upper_bound`` may use, shape (k,)."""
         return np.flatnonzero(self.column_bounds() <= upper_bound)
+
+    def along_paths(self, graph: ProductGraph, cutoff: float) -> DualBound:
+        """The same bound with the path reduced cost of every column of reduced cost <= ``cutoff``.
+
+        Valid only for models whose solutions are single closed paths (CYC, CON and the
+        connectivity cuts). Columns above the cutoff keep their reduced cost.
+        """
+        inside = np.flatnonzero(self.reduced <= cutoff)
+        strengthened = self.reduced.copy()
+        strengthened[inside] = path_reduced_costs(graph, inside, self.reduced[inside], cutoff)
+        return DualBound(self.bound, strengthened)
 
     def bound_outside(self, columns: np.ndarray) -> float:
         """Lower bound on any solution that uses at least one column *not* in ``columns``."""

@@ -472,7 +472,10 @@ def solve_reduced_cost_fixing(
         if result.x is None:
             break
         incumbent = result.x
-        outside = lp.dual.bound_outside(columns)
+        fixing = lp.dual
+        if imposes_paths(model):  # every solution is one closed path: fix by path reduced costs
+            fixing = lp.dual.along_paths(graph, cutoff=result.objective - lp.dual.bound)
+        outside = fixing.bound_outside(columns)
         # a run at the target gap certifies the sub-model, and the full model if nothing outside
         # is cheaper (a run at the seed gap proves only that gap: see certified_mip_bound)
         certified = result.status == "optimal" and gap == options.mip_rel_gap and outside >= result.bound
@@ -483,7 +486,7 @@ def solve_reduced_cost_fixing(
         )
         if certified or result.status != "optimal":
             break  # certified for the full model, or the time limit stopped the phase
-        columns = np.union1d(columns, lp.dual.surviving_columns(result.objective))
+        columns = np.union1d(columns, fixing.surviving_columns(result.objective))
     if result.status == "optimal" and not certified:
         result = replace(result, status="feasible", message="gap not closed within the rcfix phases")
     return replace(result, wall_time=time.perf_counter() - start, n_vars=model.n_vars)
