@@ -69,21 +69,21 @@ def closed_walks(curve, graph):
     return walks
 
 
+def passes_checker(curve, graph, ids) -> bool:
+    """Whether the walk with edge ids ``ids`` passes the independent checker."""
+    target_edges = graph.target_edges[: graph.target_edges.shape[0] // 2]
+    return check_solution(curve.vertices, target_edges, graph.n_target, graph.edge_tuples(np.array(ids))).ok
+
+
 def checked_walks(curve, graph):
     """The closed walks of :func:`closed_walks` that pass the independent checker."""
-    target_edges = graph.target_edges[: graph.target_edges.shape[0] // 2]
-    return [
-        ids
-        for ids in closed_walks(curve, graph)
-        if check_solution(curve.vertices, target_edges, graph.n_target, graph.edge_tuples(np.array(ids))).ok
-    ]
+    return [ids for ids in closed_walks(curve, graph) if passes_checker(curve, graph, ids)]
 
 
 def brute_force(curve, graph, costs):
     """Cheapest single closed walk passing the independent checker (within-layer walks simple)."""
-    target_edges = graph.target_edges[: graph.target_edges.shape[0] // 2]
     for ids in sorted(closed_walks(curve, graph), key=lambda ids: costs[ids].sum()):
-        if check_solution(curve.vertices, target_edges, graph.n_target, graph.edge_tuples(np.array(ids))).ok:
+        if passes_checker(curve, graph, ids):
             return costs[ids].sum()
     return None
 

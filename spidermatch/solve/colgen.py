@@ -81,6 +81,7 @@ from spidermatch.solve.strategies import (
     LP_EXTRA,
     CutPool,
     count_fractional,
+    imposes_paths,
     remaining,
     solve_with_cuts,
 )
@@ -162,7 +163,7 @@ def by_path(lazy: LazyModel, priced: Pricing) -> Pricing:
     Every column of the pass keeps its id; ``min_outside`` stays valid, as a column outside has
     path reduced cost at least its reduced cost, above the cutoff.
     """
-    if not {"CYC", "CON"} <= set(lazy.row_families):
+    if not imposes_paths(lazy):
         return priced  # solutions need not be closed paths: reduced costs only
     start = time.perf_counter()
     path_costs = path_reduced_costs(lazy.graph, priced.columns, priced.reduced, priced.cutoff)

@@ -264,11 +264,7 @@ def _repaired(sub, graph, column_ids, x_sub, affected, pool, options) -> np.ndar
     if x_sub is None or options.time_limit <= 0:
         return None
     repaired = repair_detached(sub, graph, column_ids, x_sub, affected, pool, options)
-    if repaired is None:
-        return None
-    x = np.zeros(graph.n_edges)
-    x[column_ids] = repaired
-    return x
+    return expand(repaired, column_ids, graph.n_edges)
 
 
 def _cheapest_start(graph, session, columns, n_vars, repaired) -> np.ndarray | None:
