@@ -38,6 +38,8 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
     """
     path = Path(path)
     name = str(path)
+    if path.is_dir():
+        raise MeshError(f"{name}: is a folder, not a mesh file")
     if not path.is_file():
         raise MeshError(f"{name}: no such file")
     if path.suffix.lower() not in MESH_SUFFIXES:
@@ -46,10 +48,14 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
         )
     if path.stat().st_size == 0:
         raise MeshError(f"{name}: empty mesh (the file is empty)")
-    verts, faces = read_off(path) if path.suffix.lower() == ".off" else _read_with_trimesh(path)
+    readers = {".off": read_off, ".obj": read_obj}
+    verts, faces, *notes = readers.get(path.suffix.lower(), _read_with_trimesh)(path)
+    notes = tuple(notes[0]) if notes else ()
+    for note in notes:
+        logger.warning("%s", note)
     if validate:
-        return make_mesh(verts, faces, name)
-    return Mesh(verts, faces, name)
+        return make_mesh(verts, faces, name, notes)
+    return Mesh(verts, faces, name, notes)
 
 
 def _content_lines(path: Path) -> list[tuple[int, list[str]]]:
@@ -141,6 +147,61 @@ def read_off(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     return verts, faces[:, 1:]
 
 
+def _obj_index(token: str, n_verts: int, path: Path, number: int) -> int:
+    """0-based vertex index of an OBJ face corner ``v``, ``v/vt``, ``v//vn`` or ``v/vt/vn``."""
+    text = token.split("/", 1)[0]
+    try:
+        index = int(text)
+    except ValueError:
+        raise MeshError(f"{path}:{number}: face corner {token!r} is not a vertex index") from None
+    if index == 0:
+        raise MeshError(f"{path}:{number}: OBJ vertex indices start at 1, found 0")
+    return index - 1 if index > 0 else n_verts + index  # negative: relative to the vertices so far
+
+
+def read_obj(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Read the vertices and faces of an OBJ file, in file order, into one mesh.
+
+    Only ``v`` and ``f`` lines count: groups and objects (``o``, ``g``), materials
+    (``usemtl``, ``mtllib``), texture coordinates and normals, as Blender and most tools
+    write them, are ignored; all faces index the one vertex pool. Polygons with more than
+    three corners are split into triangle fans, which the returned notes report.
+
+    Returns
+    -------
+    verts : np.ndarray, shape (V, 3), float64
+    faces : np.ndarray, shape (F, 3), int64 (indices not yet range-checked)
+    notes : list of str
+        What was changed on reading (polygons split).
+
+    """
+    path = Path(path)
+    verts, faces, polygons = [], [], 0
+    for number, tokens in _content_lines(path):
+        if tokens[0] == "v":
+            if len(tokens) < 4:
+                raise MeshError(
+                    f"{path}:{number}: a vertex line needs 3 coordinates, found {len(tokens) - 1}"
+                )
+            try:
+                verts.append([float(value) for value in tokens[1:4]])
+            except ValueError:
+                raise MeshError(
+                    f"{path}:{number}: vertex line holds a non-number: {' '.join(tokens)!r}"
+                ) from None
+        elif tokens[0] == "f":
+            corners = [_obj_index(token, len(verts), path, number) for token in tokens[1:]]
+            if len(corners) < 3:
+                raise MeshError(f"{path}:{number}: a face needs at least 3 corners, found {len(corners)}")
+            polygons += len(corners) > 3
+            faces += [[corners[0], corners[k], corners[k + 1]] for k in range(1, len(corners) - 1)]
+    notes = []
+    if polygons:
+        notes.append(f"{path}: {polygons} faces with more than three corners were split into triangles")
+    faces_array = np.array(faces, dtype=np.int64).reshape(-1, 3)
+    return np.array(verts, dtype=np.float64).reshape(-1, 3), faces_array, notes
+
+
 def _read_with_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     import trimesh
 
@@ -186,6 +247,11 @@ def read_vts(path: str | os.PathLike, n_verts: int | None = None) -> np.ndarray:
         raise MeshError(f"{path}: no such correspondence file")
     values = []
     for number, tokens in _content_lines(path):
+        if len(tokens) > 1:
+            raise MeshError(
+                f"{path}:{number}: {len(tokens)} numbers on one line; a .vts file holds one vertex index "
+                "per line"
+            )
         for token in tokens:
             if not (
                 token.isascii() and token.lstrip("+-").isdigit() and len(token) - len(token.lstrip("+-")) <= 1

@@ -32,12 +32,15 @@ class Mesh:
         Vertex indices of each triangle (read-only).
     name : str
         Where the mesh came from (file path or generator name), used in messages.
+    notes : tuple of str
+        What was repaired when the mesh was made (e.g. faces re-oriented), for logs and reports.
 
     """
 
     verts: np.ndarray
     faces: np.ndarray
     name: str = "<mesh>"
+    notes: tuple = field(default=(), compare=False)
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -95,7 +98,7 @@ class Mesh:
 
     def centred(self) -> Mesh:
         """Return a copy translated so that the mean vertex lies at the origin."""
-        return Mesh(self.verts - self.verts.mean(axis=0), self.faces, self.name)
+        return Mesh(self.verts - self.verts.mean(axis=0), self.faces, self.name, self.notes)
 
     def edge_graph(self, augmented: bool = False) -> sp.csr_matrix:
         """Symmetric sparse adjacency weighted by Euclidean edge length, shape (V, V)."""
@@ -174,14 +177,15 @@ def edge_length_graph(verts: np.ndarray, edges: np.ndarray) -> sp.csr_matrix:
     return graph.tocsr()
 
 
-def validate_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") -> None:
+def validate_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") -> np.ndarray:
     """Check that (verts, faces) is a usable triangle mesh; raise :class:`MeshError` if not.
 
-    Checks, in order: array shapes, empty mesh, non-finite coordinates, faces that
-    index missing vertices, degenerate faces (repeated vertex or zero area),
+    Checks, in order: array shapes and number types, empty mesh, non-finite coordinates,
+    faces that index missing vertices, degenerate faces (repeated vertex or zero area),
     vertices used by no face, non-manifold edges (more than two faces),
-    non-manifold vertices (two fans of faces meeting at one vertex, a "bowtie") and
-    several connected components.
+    non-manifold vertices (two fans of faces meeting at one vertex, a "bowtie"),
+    several connected components and a non-orientable surface (a Moebius strip). Faces
+    that are only oriented inconsistently pass: :func:`make_mesh` re-orients them.
 
     Parameters
     ----------
@@ -190,10 +194,16 @@ def validate_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") ->
     name : str
         Named in every error message (typically the file path).
 
+    Returns
+    -------
+    np.ndarray, shape (F,), bool
+        Faces to reverse for one consistent orientation (see :func:`faces_to_flip`).
+
     """
     verts = np.asarray(verts)
     faces = np.asarray(faces)
     _check_shapes(verts, faces, name)
+    _check_number_types(verts, faces, name)
     _check_finite(verts, name)
     _check_face_indices(faces, verts.shape[0], name)
     _check_degenerate_faces(verts, faces, name)
@@ -201,6 +211,7 @@ def validate_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") ->
     _check_manifold_edges(faces, name)
     _check_manifold_vertices(faces, name)
     _check_single_component(faces, verts.shape[0], name)
+    return faces_to_flip(faces, name)
 
 
 def _check_shapes(verts: np.ndarray, faces: np.ndarray, name: str) -> None:
@@ -213,6 +224,12 @@ def _check_shapes(verts: np.ndarray, faces: np.ndarray, name: str) -> None:
         raise MeshError(f"{name}: vertices must have shape (V, 3), got {verts.shape}")
     if faces.ndim != 2 or faces.shape[1] != 3:
         raise MeshError(f"{name}: faces must be triangles with shape (F, 3), got {faces.shape}")
+
+
+def _check_number_types(verts: np.ndarray, faces: np.ndarray, name: str) -> None:
+    if verts.dtype.kind not in "fiu":
+        kind = "complex numbers" if verts.dtype.kind == "c" else f"values of dtype {verts.dtype}"
+        raise MeshError(f"{name}: vertex coordinates must be real numbers, got {kind}")
     if not np.issubdtype(faces.dtype, np.integer):
         raise MeshError(f"{name}: face indices must be integers, got dtype {faces.dtype}")
 
@@ -333,7 +350,89 @@ def _check_single_component(faces: np.ndarray, n_verts: int, name: str) -> None:
         )
 
 
-def make_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") -> Mesh:
-    """Validate (verts, faces) and wrap them in a :class:`Mesh`."""
-    validate_mesh(verts, faces, name)
-    return Mesh(np.asarray(verts, dtype=np.float64), np.asarray(faces, dtype=np.int64), name)
+def faces_to_flip(faces: np.ndarray, name: str = "<mesh>") -> np.ndarray:
+    """Faces whose corner order must be reversed for one consistent orientation.
+
+    Two faces sharing an edge are consistently oriented when they traverse it in opposite
+    directions. Each face gets one of two orientation labels such that every shared edge
+    either keeps or swaps the label as its two faces agree or disagree: the connected
+    components of a graph over (face, label) nodes. The surface is orientable exactly when no
+    face is connected to itself with the other label. Of the two consistent orientations
+    the one that reverses fewer faces is chosen.
+
+    Parameters
+    ----------
+    faces : np.ndarray, shape (F, 3)
+        Faces of a manifold, connected mesh (every edge in at most two faces).
+    name : str
+        Named in the error message.
+
+    Returns
+    -------
+    np.ndarray, shape (F,), bool
+        True for the faces to reverse (none for a consistently oriented mesh).
+
+    Raises
+    ------
+    MeshError
+        The surface is not orientable (e.g. a Moebius strip), so no orientation exists.
+
+    """
+    n_faces = len(faces)
+    directed = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)  # (3F, 2)
+    forward = directed[:, 0] < directed[:, 1]
+    undirected = np.sort(directed, axis=1)
+    order = np.lexsort((undirected[:, 1], undirected[:, 0]))
+    shared = np.all(undirected[order[1:]] == undirected[order[:-1]], axis=1)
+    first, second = order[:-1][shared], order[1:][shared]
+    face_a, face_b = first // 3, second // 3
+    agree = forward[first] != forward[second]  # opposite directions: consistently oriented
+    other_a, other_b = face_a + n_faces, face_b + n_faces
+    rows = np.concatenate([face_a, other_a])
+    cols = np.concatenate([np.where(agree, face_b, other_b), np.where(agree, other_b, face_b)])
+    graph = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(2 * n_faces, 2 * n_faces))
+    labels = connected_components(graph, directed=False)[1]
+    twisted = np.flatnonzero(labels[:n_faces] == labels[n_faces:])
+    if twisted.size:
+        raise MeshError(
+            f"{name}: the surface is not orientable (like a Moebius strip: face {twisted[0]} = "
+            f"{faces[twisted[0]].tolist()} meets itself with its orientation reversed); no consistent "
+            "matching of such a surface exists"
+        )
+    flip = labels[:n_faces] != labels[0]
+    return ~flip if flip.sum() > n_faces / 2 else flip
+
+
+def is_closed(faces: np.ndarray) -> bool:
+    """True if every edge of the (manifold) faces (F, 3) is shared by two faces."""
+    return 2 * len(unique_edges(faces)) == faces.size
+
+
+def signed_volume(verts: np.ndarray, faces: np.ndarray) -> float:
+    """Volume enclosed by a closed, consistently oriented surface; negative when it faces inwards."""
+    a, b, c = (verts[faces[:, k]] for k in range(3))
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+
+def make_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>", notes: tuple = ()) -> Mesh:
+    """Validate (verts, faces) and wrap them in a :class:`Mesh`.
+
+    Inconsistently oriented faces are reversed (the decimation and every normal need one
+    orientation): on a closed surface to the outward orientation, on an open one to the
+    orientation most faces share. The mesh's ``notes`` (after the given ``notes``, e.g. the
+    loader's) and the log say how many.
+    """
+    flip = validate_mesh(verts, faces, name)
+    faces = np.array(faces, dtype=np.int64)
+    notes = tuple(notes)
+    if flip.any():
+        faces[flip] = faces[flip][:, ::-1]
+        if is_closed(faces) and signed_volume(np.asarray(verts, dtype=np.float64), faces) < 0:
+            faces, flip = faces[:, ::-1].copy(), ~flip
+        note = (
+            f"{name}: {int(flip.sum())} of {len(faces)} faces were oriented against their neighbours; "
+            "they were reversed so that all faces share one orientation"
+        )
+        logger.warning("%s", note)
+        notes += (note,)
+    return Mesh(np.asarray(verts, dtype=np.float64), faces, name, notes)
