@@ -14,6 +14,7 @@ _LAZY = {
     "MeshError": "spidermatch.mesh",
     "MatchSettings": "spidermatch.pipeline",
     "MatchError": "spidermatch.pipeline",
+    "OptionError": "spidermatch.validate",
 }
 
 __all__ = ["__version__", *_LAZY]

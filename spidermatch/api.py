@@ -280,14 +280,14 @@ def _settings(base, feature_name: str, resolution, time_limit, mip_rel_gap, stra
             solver=SolverOptions(time_limit=DEFAULT_TIME_LIMIT),
             strategy=AUTO,
         )
-    solver = base.solver
+    solver = base.solver  # values pass unconverted: pipeline.match checks them (no silent int(150.9))
     if time_limit is not None:
-        solver = dataclasses.replace(solver, time_limit=float(time_limit))
+        solver = dataclasses.replace(solver, time_limit=time_limit)
     if mip_rel_gap is not None:
-        solver = dataclasses.replace(solver, mip_rel_gap=float(mip_rel_gap))
+        solver = dataclasses.replace(solver, mip_rel_gap=mip_rel_gap)
     changes = {"solver": solver}
     if resolution is not None:
-        changes["resolution"] = int(resolution)
+        changes["resolution"] = resolution
     changes["strategy"] = strategy_for(str(strategy if strategy is not None else base.strategy), feature_name)
     return dataclasses.replace(base, **changes)
 

@@ -113,3 +113,15 @@ def product_edge_costs(
         + ((target_verts[a] - target_verts[b]) ** 2).sum(axis=1)
     )
     return length * (vertex_costs[p, a] + vertex_costs[q, b])
+
+
+def unit_rows(features: np.ndarray) -> np.ndarray:
+    """Rows of ``features`` (N, D) scaled to unit L2 norm (zero rows stay zero), as float64 (N, D).
+
+    Each row is first divided by its largest magnitude, so that descriptors of any scale
+    (1e-200 or 1e200) normalise without underflow or overflow.
+    """
+    rows = np.asarray(features, dtype=np.float64)
+    largest = np.max(np.abs(rows), axis=1, keepdims=True) if rows.size else np.ones((len(rows), 1))
+    rows = rows / np.where(largest > 0, largest, 1.0)
+    return rows / np.maximum(np.linalg.norm(rows, axis=1, keepdims=True), 1e-12)

@@ -38,12 +38,16 @@ full-resolution vertex ``low_x.to_full[i]`` goes to ``low_y.to_full[low_map[i]]`
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
+from numbers import Integral, Real
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from spidermatch.coarse import coarse_labels, faces_by_label, project_onto_coarse, ring_faces
+from spidermatch.costs import unit_rows
 from spidermatch.mesh import Mesh
 from spidermatch.remesh import Decimated
 from spidermatch.surface import (
@@ -94,12 +98,54 @@ class DenseSettings:
     smoothing: int = 3
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"unknown dense method {self.method!r}; choose from {METHODS}")
-        if self.radius <= 0 or self.n_neighbours < 1:
-            raise ValueError("dense radius must be > 0 and n_neighbours >= 1")
-        if not 0 < self.spectral_start <= self.spectral_stop or self.spectral_step < 1:
-            raise ValueError("dense spectral schedule needs 0 < start <= stop and step >= 1")
+        problems = settings_problems(asdict(self))
+        if problems:
+            raise ValueError("dense settings: " + "; ".join(problems))
+
+
+WHOLE_SETTINGS = {
+    "n_neighbours": 1,
+    "spectral_start": 1,
+    "spectral_stop": 1,
+    "spectral_step": 1,
+    "smoothing": 0,
+}
+"""Whole-number settings of :class:`DenseSettings` and their least values."""
+
+REAL_SETTINGS = {"radius": "> 0", "distance_weight": ">= 0", "spectral_feature_weight": ">= 0"}
+"""Real-number settings of :class:`DenseSettings` and their allowed range."""
+
+
+def _is_whole(value) -> bool:
+    return isinstance(value, Integral) and not isinstance(value, bool)
+
+
+def _is_real(value) -> bool:
+    return isinstance(value, Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def settings_problems(values: Mapping) -> list[str]:
+    """Why ``values`` (keys of :class:`DenseSettings`) are unusable, one ``key=value: rule`` each.
+
+    Checked before any work, so that a bad dense option never ends a run after the solve.
+    """
+    known = {item.name for item in fields(DenseSettings)}
+    problems = [
+        f"{key}: unknown (choose from {', '.join(sorted(known))})" for key in values if key not in known
+    ]
+    if "method" in values and values["method"] not in METHODS:
+        problems.append(f"method={values['method']!r}: unknown dense method; choose from {', '.join(METHODS)}")
+    for key, least in WHOLE_SETTINGS.items():
+        if key in values and (not _is_whole(values[key]) or values[key] < least):
+            problems.append(f"{key}={values[key]!r}: must be a whole number >= {least}")
+    for key, allowed in REAL_SETTINGS.items():
+        value = values.get(key, 1.0)
+        if not _is_real(value) or (value <= 0 if allowed == "> 0" else value < 0):
+            problems.append(f"{key}={value!r}: must be a finite number {allowed}")
+    start, stop = values.get("spectral_start", 1), values.get("spectral_stop", 1)
+    if _is_whole(start) and _is_whole(stop) and start > stop:
+        problems.append(f"spectral_start={start} > spectral_stop={stop}: the schedule must grow")
+    return problems
 
 
 @dataclass(frozen=True, eq=False)
@@ -171,7 +217,7 @@ def densify(
         vertex = nearest_corner(target, face, bary)
     elif settings.method == "interp_features":
         points = surface_positions(target, face, bary)
-        fx, fy = _unit_rows(source_features), _unit_rows(target_features)
+        fx, fy = unit_rows(source_features), unit_rows(target_features)
         vertex = feature_refined_vertices(target, points, radius, fx, fy, settings)
         face, bary = vertex_points(target, vertex)
     else:
@@ -259,11 +305,6 @@ def mean_incident_edge_length(mesh: Mesh) -> np.ndarray:
     total = np.bincount(edges.reshape(-1), np.repeat(length, 2), minlength=mesh.n_verts)
     count = np.bincount(edges.reshape(-1), minlength=mesh.n_verts)
     return total / np.maximum(count, 1)
-
-
-def _unit_rows(features: np.ndarray) -> np.ndarray:
-    features = np.asarray(features, dtype=np.float64)
-    return features / np.maximum(np.linalg.norm(features, axis=1, keepdims=True), 1e-12)
 
 
 def local_candidates(target: Mesh, points: np.ndarray, radius: np.ndarray, k: int):
@@ -359,7 +400,7 @@ def spectral_vertices(
     extra = None
     if settings.spectral_feature_weight > 0:
         weight = settings.spectral_feature_weight
-        extra = (weight * _unit_rows(features[0]), weight * _unit_rows(features[1]))
+        extra = (weight * unit_rows(features[0]), weight * unit_rows(features[1]))
     schedule = range(min(settings.spectral_start, stop), stop + 1, settings.spectral_step)
     return zoomout(
         evecs_x[:, :stop] * scale_x,
@@ -391,4 +432,4 @@ def feature_nearest_neighbours(source_features: np.ndarray, target_features: np.
     """The features' own dense map: most similar (cosine) target vertex per source vertex, (V_X,)."""
     from spidermatch.zoomout import nearest_rows
 
-    return nearest_rows(_unit_rows(source_features), _unit_rows(target_features))
+    return nearest_rows(unit_rows(source_features), unit_rows(target_features))

@@ -6,7 +6,9 @@ mesh -> decimation -> SpiderCurve (source) -> product graph -> costs -> ILP -> H
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+import math
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -23,16 +25,18 @@ from spidermatch.correspondence import (
     entries_without_flow,
     extract_path,
 )
-from spidermatch.costs import RobustLoss, feature_cost_matrix
+from spidermatch.costs import RobustLoss, feature_cost_matrix, unit_rows
 from spidermatch.curve import SpiderCurve, spider_curve
 from spidermatch.dense import DenseMap, DenseSettings, densify
 from spidermatch.ilp import FAMILIES, IlpModel
 from spidermatch.lazy_model import LazyModel
 from spidermatch.mesh import Mesh
+from spidermatch.model_size import check_model_fits
 from spidermatch.product_graph import ProductGraph, build_product_graph
 from spidermatch.remesh import Decimated, decimate
 from spidermatch.solve.highs import SolveResult, SolverOptions
 from spidermatch.solve.strategies import LAZY_STRATEGIES, solve_with_strategy
+from spidermatch.validate import check_settings
 
 logger = logging.getLogger(__name__)
 
@@ -179,8 +183,7 @@ def _stage(timings: dict, name: str):
 
 def low_resolution_features(features: np.ndarray, to_full: np.ndarray) -> np.ndarray:
     """Rows of full-resolution features (V, D) at the low-res vertices, L2-normalised."""
-    rows = np.asarray(features, dtype=np.float64)[to_full]
-    return rows / np.maximum(np.linalg.norm(rows, axis=1, keepdims=True), 1e-12)
+    return unit_rows(np.asarray(features)[to_full])
 
 
 def prepare(
@@ -198,6 +201,9 @@ def prepare(
     """
     _check_features(source, source_features, "source")
     _check_features(target, target_features, "target")
+    check_model_fits(
+        (source.n_faces, target.n_faces), settings.resolution, settings.strategy, settings.target_augmented
+    )
     with _stage(timings, "decimate"):
         low_x = decimate(source.centred(), settings.resolution, settings.decimation)
         low_y = decimate(target.centred(), settings.resolution, settings.decimation)
@@ -272,12 +278,15 @@ def match(
 
     """
     settings = settings or MatchSettings()
+    check_settings(settings)
     timings: dict = {}
     low_x, low_y, curve, graph, model = prepare(
         source, target, source_features, target_features, settings, timings
     )
     with _stage(timings, "solve"):
-        solved = solve_with_strategy(settings.strategy, model, graph, curve, settings.solver)
+        solved = within_optimal_gap(
+            solve_with_strategy(settings.strategy, model, graph, curve, settings.solver)
+        )
     logger.info(
         "solver: %s, objective %.6g, bound %.6g, gap %.2e",
         solved.status,
@@ -291,19 +300,65 @@ def match(
     if solved.x is not None:
         with _stage(timings, "check"):
             _read_solution(result, tuple(settings.constraints))
-    if settings.dense is not None and result.low_map is not None and result.check.ok:
-        with _stage(timings, "dense"):
-            result.dense = densify(
-                source.centred(),
-                target.centred(),
-                low_x,
-                low_y,
-                result.low_map,
-                source_features,
-                target_features,
-                settings.dense,
-            )
+    if settings.dense is not None:
+        add_dense_map(result, source, target, (source_features, target_features), settings.dense)
     return result
+
+
+OPTIMAL_GAP = 1e-3
+"""The largest relative gap a result may have and still be called "optimal" (the default
+``mip_rel_gap`` is 1e-4): a larger requested gap yields "feasible", within the requested gap."""
+
+OPTIMAL_ABSOLUTE_GAP = 1e-6
+"""An objective within this of its bound is optimal whatever the relative gap (costs near 0)."""
+
+
+def within_optimal_gap(solved: SolveResult) -> SolveResult:
+    """``solved``, with "optimal" turned into "feasible" when its gap exceeds :data:`OPTIMAL_GAP`.
+
+    HiGHS calls a solution optimal once it is within the requested ``mip_rel_gap``; a
+    reader of "optimal" expects no matching to be noticeably cheaper, so a looser
+    requested gap (e.g. 0.9) gives "feasible" with a message that says so.
+    """
+    if solved.status != "optimal" or not math.isfinite(solved.gap) or solved.gap <= OPTIMAL_GAP:
+        return solved
+    if solved.objective - solved.bound <= OPTIMAL_ABSOLUTE_GAP:
+        return solved
+    message = (
+        f"{solved.message}; within the requested gap, but its gap {solved.gap:.2e} is above {OPTIMAL_GAP:g}: "
+        "not proven optimal"
+    )
+    logger.warning("%s", message)
+    return dataclasses.replace(solved, status="feasible", message=message)
+
+
+def add_dense_map(
+    result: MatchResult, source: Mesh, target: Mesh, features: tuple, settings: DenseSettings
+) -> None:
+    """Set ``result.dense``: the image of every full-resolution source vertex (a checked matching only).
+
+    Parameters
+    ----------
+    result : MatchResult
+        A finished match of ``source`` to ``target``; left as it is without a checked matching.
+    source, target : Mesh
+        The full-resolution meshes the match was run on.
+    features : (np.ndarray (V_X, D), np.ndarray (V_Y, D))
+    settings : DenseSettings
+
+    """
+    if result.low_map is None or result.check is None or not result.check.ok:
+        return
+    with _stage(result.timings, "dense"):
+        result.dense = densify(
+            source.centred(),
+            target.centred(),
+            result.source,
+            result.target,
+            result.low_map,
+            *features,
+            settings,
+        )
 
 
 def _read_solution(result: MatchResult, families: tuple = FAMILIES) -> None:

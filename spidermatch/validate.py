@@ -19,6 +19,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from spidermatch.curve import MATCHINGS
+from spidermatch.dense import settings_problems as dense_settings_problems
 from spidermatch.mesh import Mesh, MeshError, face_edges
 
 logger = logging.getLogger(__name__)
@@ -125,13 +126,45 @@ def costs_and_curve_problems(cfg) -> list[str]:
     return problems
 
 
+PATH_OPTIONS = ("source", "target", "source_corr", "target_corr", "checkpoint")
+OUTPUT_SWITCHES = ("matches_csv", "result_json", "png", "viewer")
+
+
+def path_problems(cfg) -> list[str]:
+    """File options must be single paths (``target=[1,2]`` is a list, not a file)."""
+    problems = []
+    for key in PATH_OPTIONS:
+        value = cfg.get(key)
+        if value is not None and not isinstance(value, str):
+            problems.append(f"{key}={value}: must be one file path")
+    return problems
+
+
+def dense_and_output_problems(cfg) -> list[str]:
+    """Problems with the ``dense`` and ``output`` option groups (checked before any work)."""
+    problems = []
+    dense = cfg.get("dense")
+    if dense is not None:
+        if not isinstance(dense.get("enabled"), bool):
+            problems.append(f"dense.enabled={_show(dense.get('enabled'))}: must be true or false")
+        values = {key: value for key, value in dense.items() if key != "enabled"}
+        problems += [f"dense.{problem}" for problem in dense_settings_problems(values)]
+    output = cfg.get("output")
+    if output is not None:
+        for key in OUTPUT_SWITCHES:
+            if key in output and not isinstance(output.get(key), bool):
+                problems.append(f"output.{key}={_show(output.get(key))}: must be true or false")
+    return problems
+
+
 def check_options(cfg) -> None:
     """Validate every option that decides a match; raise :class:`OptionError` listing all problems.
 
     Parameters
     ----------
     cfg : DictConfig or mapping
-        Needs ``resolution`` and the groups ``solver``, ``costs`` and ``curve``.
+        Needs ``resolution`` and the groups ``solver``, ``costs`` and ``curve``; ``dense``,
+        ``output`` and the file options are checked where present.
 
     """
     from spidermatch.ilp import FAMILIES
@@ -141,6 +174,42 @@ def check_options(cfg) -> None:
     problems += solver_problems(cfg.solver, [AUTO, *sorted({*STRATEGIES, *LAZY_STRATEGIES})])
     problems.append(constraints_problem(cfg.costs.get("constraints"), FAMILIES))
     problems += costs_and_curve_problems(cfg)
+    problems += path_problems(cfg) + dense_and_output_problems(cfg)
+    problems = [p for p in problems if p]
+    if problems:
+        raise OptionError("bad option: " + "; ".join(problems))
+
+
+def check_settings(settings) -> None:
+    """Validate a :class:`~spidermatch.pipeline.MatchSettings` as :func:`check_options` does the config.
+
+    The Python API and every other caller of :func:`spidermatch.pipeline.match` get the
+    same checks, with the same messages, as the command line (``resolution=150.9``, a text
+    ``'150'`` or ``time_limit=nan`` are refused, never truncated or passed on).
+
+    Raises
+    ------
+    OptionError
+        Listing every problem, each naming its setting.
+
+    """
+    from spidermatch.ilp import FAMILIES
+    from spidermatch.solve.strategies import LAZY_STRATEGIES, STRATEGIES
+
+    solver = settings.solver
+    solver_values = {
+        "time_limit": solver.time_limit,
+        "mip_rel_gap": solver.mip_rel_gap,
+        "threads": solver.threads,
+        "presolve": solver.presolve,
+        "strategy": settings.strategy,
+        "log": solver.log,
+    }
+    problems = [resolution_problem(settings.resolution)]
+    problems += solver_problems(solver_values, sorted({*STRATEGIES, *LAZY_STRATEGIES}))
+    problems.append(constraints_problem(settings.constraints, FAMILIES))
+    if settings.decimation not in DECIMATIONS:
+        problems.append(f"decimation={_show(settings.decimation)}: choose from {', '.join(DECIMATIONS)}")
     problems = [p for p in problems if p]
     if problems:
         raise OptionError("bad option: " + "; ".join(problems))

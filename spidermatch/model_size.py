@@ -1,0 +1,191 @@
+"""The size of a match's ILP before anything is built, and whether it fits in memory.
+
+The product graph of a SpiderCurve with L positions and a target mesh with E edges and V
+vertices has L (4 E + V) columns (every directed edge twice, one stay edge per vertex; with
+augmented target edges, E counts those). A closed triangle mesh of F faces has E = 3F/2 and
+V = F/2 + 2 - 2g; the SpiderCurve visits every source vertex and some twice, L <= 1.25 V_X
+on the meshes measured (``bench/bench_scaling.py``). So the columns grow with the product of
+the two face counts, about 4 F_X F_Y, and a resolution at or above the meshes' own face
+counts (which are then matched as they are) can ask for hundreds of GB.
+
+:func:`check_model_fits` estimates the memory of the solve stage from the column count and
+the bytes per column measured for each kind of strategy, and refuses with an
+:class:`~spidermatch.validate.OptionError` naming ``resolution`` and the largest one that
+fits, before any array is allocated.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import resource
+from dataclasses import dataclass
+from pathlib import Path
+
+from spidermatch.validate import OptionError
+
+logger = logging.getLogger(__name__)
+
+CURVE_POSITIONS_PER_VERTEX = 1.25
+"""Upper end of L / V_X (SpiderCurve positions per low-resolution source vertex)."""
+
+BYTES_PER_COLUMN = {"colgen": 80, "full": 500}
+"""Peak bytes per product-graph column: column generation (costs and pricing arrays of every
+column) and strategies that build the full model (matrix, costs and HiGHS's copy of it)."""
+
+BASE_BYTES = 1 << 30
+"""What a match process holds besides the model (interpreter, libraries, meshes, features)."""
+
+FULL_MODEL = "full"
+GIB = float(1 << 30)
+
+
+@dataclass(frozen=True)
+class ModelEstimate:
+    """Expected size of a match's ILP.
+
+    Attributes
+    ----------
+    faces_x, faces_y : int
+        Faces the two meshes are matched at (the resolution, or fewer for coarser meshes).
+    columns : int
+        Product-graph columns (edges) of the full model.
+    bytes : int
+        Expected peak memory of the match process for the chosen strategy.
+
+    """
+
+    faces_x: int
+    faces_y: int
+    columns: int
+    bytes: int
+
+
+def expected_columns(faces_x: int, faces_y: int, target_augmented: bool = False) -> int:
+    """Product-graph columns for meshes matched at ``faces_x`` and ``faces_y`` faces (an upper estimate)."""
+    positions = CURVE_POSITIONS_PER_VERTEX * (faces_x / 2 + 2)
+    edges_y = 1.5 * faces_y * (2.0 if target_augmented else 1.0)
+    return int(math.ceil(positions * (4 * edges_y + faces_y / 2 + 2)))
+
+
+def strategy_kind(strategy: str) -> str:
+    """Say "colgen" for strategies that never build the full model, else "full"."""
+    from spidermatch.solve.strategies import LAZY_STRATEGIES
+
+    return "colgen" if strategy in LAZY_STRATEGIES else FULL_MODEL
+
+
+def estimate(faces_x: int, faces_y: int, resolution: int, strategy: str, target_augmented: bool = False):
+    """:class:`ModelEstimate` of matching meshes of ``faces_x`` and ``faces_y`` faces at ``resolution``."""
+    low_x, low_y = min(faces_x, resolution), min(faces_y, resolution)
+    columns = expected_columns(low_x, low_y, target_augmented)
+    peak = BASE_BYTES + columns * BYTES_PER_COLUMN[strategy_kind(strategy)]
+    return ModelEstimate(low_x, low_y, columns, int(peak))
+
+
+def available_memory() -> int | None:
+    """Bytes this process may still allocate: the least of free memory, its cgroup's and RLIMIT_AS's room.
+
+    None where none of them can be read (then nothing is refused).
+    """
+    limits = [_mem_available(), _cgroup_room()]
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft != resource.RLIM_INFINITY:
+        limits.append(soft - _own_address_space())
+    known = [limit for limit in limits if limit is not None]
+    return max(min(known), 0) if known else None
+
+
+def _mem_available() -> int | None:
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def _cgroup_room() -> int | None:
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit == "max":
+            return None
+        return int(limit) - int(Path("/sys/fs/cgroup/memory.current").read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _own_address_space() -> int:
+    try:
+        for line in Path(f"/proc/{os.getpid()}/status").read_text().splitlines():
+            if line.startswith("VmSize:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0
+
+
+def largest_fitting_resolution(room: int, strategy: str, target_augmented: bool = False) -> int:
+    """The largest face count (a multiple of 100, at least 100) whose match fits in ``room`` bytes."""
+    per_column = BYTES_PER_COLUMN[strategy_kind(strategy)]
+    columns = max(room - BASE_BYTES, 0) / per_column
+    low, high = 100, 1_000_000
+    while high - low > 100:
+        middle = (low + high) // 2
+        if expected_columns(middle, middle, target_augmented) <= columns:
+            low = middle
+        else:
+            high = middle
+    return low // 100 * 100
+
+
+def check_model_fits(
+    faces: tuple[int, int],
+    resolution: int,
+    strategy: str,
+    target_augmented: bool = False,
+    room: int | None = None,
+) -> ModelEstimate:
+    """Refuse a match whose ILP would not fit in memory, before anything is built.
+
+    Parameters
+    ----------
+    faces : (int, int)
+        Face counts of the full-resolution source and target.
+    resolution : int
+        The requested resolution (faces after decimation).
+    strategy : str
+        The solving strategy (decides the bytes per column).
+    target_augmented : bool
+        Augmented target edges (about twice the columns).
+    room : int, optional
+        Bytes available; by default :func:`available_memory`.
+
+    Returns
+    -------
+    ModelEstimate
+
+    Raises
+    ------
+    OptionError
+        The estimate exceeds the memory available; the message names ``resolution``, the
+        estimate and the largest resolution that fits.
+
+    """
+    expected = estimate(faces[0], faces[1], resolution, strategy, target_augmented)
+    room = available_memory() if room is None else room
+    logger.debug("model estimate %s, %s bytes available", expected, room)
+    if room is None or expected.bytes <= room:
+        return expected
+    coarser = ""
+    if expected.faces_x < resolution or expected.faces_y < resolution:
+        coarser = f" (the meshes have {faces[0]} and {faces[1]} faces, so they would be matched as they are)"
+    fits = largest_fitting_resolution(room, strategy, target_augmented)
+    raise OptionError(
+        f"resolution={resolution}: matching at {expected.faces_x} x {expected.faces_y} faces{coarser} "
+        f"needs a product graph of about {expected.columns:.2g} columns, an estimated "
+        f"{expected.bytes / GIB:.1f} GiB with strategy {strategy}, but only {room / GIB:.1f} GiB of memory "
+        f"is available; choose resolution={fits} or lower"
+    )
