@@ -83,7 +83,7 @@ def finished_result(folder: Path) -> dict | None:
     except (OSError, json.JSONDecodeError):
         logger.warning("unreadable %s: the pair will be run again", path)
         return None
-    return result if result.get("status") not in (None, "started") else None
+    return result if result.get("status") not in (None, "started", "writing") else None
 
 
 def summary_row(source: str, target: str, result: dict) -> dict:

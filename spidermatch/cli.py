@@ -9,6 +9,7 @@ reason. Exit codes: 0 certified (or time-limited with incumbent), 2 bad input,
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import os
@@ -27,7 +28,7 @@ from spidermatch.dense import DenseSettings
 from spidermatch.evaluate import sparse_map_errors
 from spidermatch.io import load_mesh, read_vts
 from spidermatch.mesh import Mesh, MeshError
-from spidermatch.pipeline import MatchError, MatchResult, MatchSettings, match
+from spidermatch.pipeline import MatchError, MatchResult, MatchSettings, add_dense_map, match
 from spidermatch.solve.highs import SolverOptions
 from spidermatch.solve.strategies import strategy_for
 from spidermatch.validate import (
@@ -232,19 +233,49 @@ def run_pair(cfg, output_dir: Path, get_inputs, get_features, record: dict | Non
     return code
 
 
+RUN_OUTPUTS = (
+    "matches.csv",
+    "geodesic_errors.npy",
+    "dense_matches.csv",
+    "dense_map.npz",
+    "dense_geodesic_errors.npy",
+    "correspondence.png",
+    "spider_curve.png",
+    "error.png",
+    "viewer.html",
+)
+"""Files a match may write into its run folder; an earlier run's copies are removed at the start."""
+
+
 def _start_run(output_dir: Path, result_path: Path | None, report: dict) -> None:
-    """Create the run folder and replace any older ``result.json`` by a 'started' one."""
+    """Create the run folder, remove an earlier run's outputs and write a 'started' ``result.json``.
+
+    Every output a run leaves is then its own: a run that writes fewer files (e.g.
+    ``dense.enabled=false``) never leaves another pair's dense map beside its result.
+    """
     try:
         output_dir.mkdir(parents=True, exist_ok=True)
+        stale = [output_dir / name for name in RUN_OUTPUTS if (output_dir / name).exists()]
+        for path in stale:
+            path.unlink()
     except OSError as error:
-        message = f"{output_dir}: the run folder cannot be created ({error.strerror})"
+        message = f"{output_dir}: the run folder cannot be prepared ({error.strerror})"
         raise guard.OutputError(message) from error
+    if stale:
+        logger.info("removed %d outputs of an earlier run in %s", len(stale), output_dir)
     if result_path is not None:
         write_atomic(result_path, json.dumps(report, indent=2) + "\n")
 
 
 def check_inputs(cfg, inputs: MatchInputs, report: dict) -> None:
-    """Pair checks before any work: topology of both meshes, meshes far below the resolution."""
+    """Pair checks before any work: topology of both meshes, meshes far below the resolution.
+
+    What was repaired on reading the meshes (re-oriented faces, split polygons) joins the
+    report's warnings.
+    """
+    repairs = [*inputs.source.notes, *inputs.target.notes]
+    if repairs:
+        report.setdefault("warnings", []).extend(repairs)
     if cfg.get("allow_topology_mismatch", False):
         try:
             check_same_topology(inputs.source, inputs.target)
@@ -270,7 +301,7 @@ def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -
     logger.info("features (%s) done in %.2f s", feature_name, feature_time)
     settings = settings_from_config(cfg, inputs.resolution, feature_name)
     logger.info("solving strategy: %s", settings.strategy)
-    result = match(inputs.source, inputs.target, feat_x, feat_y, settings)
+    result = match(inputs.source, inputs.target, feat_x, feat_y, dataclasses.replace(settings, dense=None))
     report.update(result_summary(result, inputs, feature_name))
     report["timings_s"] = {"features": round(feature_time, 3), **report["timings_s"]}
     try:
@@ -283,20 +314,59 @@ def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -
         report.update(error=str(error), exit_code=error.exit_code)
         return error.exit_code
     status = report["status"]
-    report["status"] = "writing"  # 'optimal' only once every requested output is written
+    report.update(status="writing", solver_status=status)  # 'optimal' only once every output is written
     picture_errors = _write_matching(cfg, output_dir, result, inputs, report)
-    if result.dense is not None:
-        dense_errors = _write_dense(output_dir, result, inputs, (feat_x, feat_y), report)
-        picture_errors = None if dense_errors is None else (inputs.source_corr, dense_errors)
-    if cfg.output.png:
-        viewer = bool(cfg.output.get("viewer", True))
-        _write_pngs(output_dir, result, inputs, {**report, "status": status}, viewer, picture_errors)
+    _write_interim_result(cfg, output_dir, report)
+    stage = "dense"
+    try:
+        if settings.dense is not None:
+            add_dense_map(result, inputs.source, inputs.target, (feat_x, feat_y), settings.dense)
+            report["timings_s"]["dense"] = round(result.timings["dense"], 3)
+            stage = "dense outputs"
+            dense_errors = _write_dense(output_dir, result, inputs, (feat_x, feat_y), report)
+            picture_errors = None if dense_errors is None else (inputs.source_corr, dense_errors)
+        if cfg.output.png:
+            stage = "pictures"
+            viewer = bool(cfg.output.get("viewer", True))
+            _write_pngs(output_dir, result, inputs, {**report, "status": status}, viewer, picture_errors)
+    except (MemoryError, guard.OutputError) as error:
+        return _stage_failed(report, stage, error)
+    except Exception as error:  # a later stage's bug must not throw the certified matching away
+        logger.debug("the %s stage failed", stage, exc_info=True)
+        return _stage_failed(report, stage, error)
     if not result.solve.proven_optimal:
         logger.warning(
             "the solver stopped early: this matching is NOT proven optimal (gap %.2e)", result.solve.gap
         )
+    report.pop("solver_status")
     report.update(status=status, exit_code=0)
     return 0
+
+
+def _write_interim_result(cfg, output_dir: Path, report: dict) -> None:
+    """``result.json`` as soon as the matching is written: status ``writing`` with the solver's figures.
+
+    A process killed in a later stage (e.g. by the kernel's OOM killer) leaves this file.
+    """
+    if cfg.output.result_json:
+        write_atomic(output_dir / "result.json", json.dumps(report, indent=2) + "\n")
+
+
+def _stage_failed(report: dict, stage: str, error: BaseException) -> int:
+    """Record a stage after the solve that failed; the certified matching's files are kept."""
+    what = (
+        "ran out of memory" if isinstance(error, MemoryError) else f"failed ({type(error).__name__}: {error})"
+    )
+    message = f"the {stage} stage {what}; matches.csv and the solver's figures are kept"
+    logger.error("%s", message)
+    report.update(
+        status="output_error",
+        failed_stage=stage,
+        error=message,
+        proven_optimal=False,
+        exit_code=guard.EXIT_OUTPUT_ERROR,
+    )
+    return guard.EXIT_OUTPUT_ERROR
 
 
 def _write_matching(
@@ -540,6 +610,41 @@ def _configure_logging(level: str) -> None:
     logging.getLogger("features").setLevel(level)
 
 
+def _save_run_config(cfg, hydra_cfg, output_dir: Path) -> None:
+    """``.hydra/config.yaml``, ``hydra.yaml`` and ``overrides.yaml``, written once the folder is held.
+
+    The configs set ``hydra.output_subdir: null`` so that Hydra does not write them itself
+    before the run folder is locked (a second run into the folder would overwrite them).
+    """
+    from omegaconf import OmegaConf
+
+    folder = output_dir / ".hydra"
+    try:
+        folder.mkdir(exist_ok=True)
+    except OSError as error:
+        raise guard.OutputError(f"{folder}: cannot be created ({error.strerror or error})") from error
+    for name, content in (
+        ("config.yaml", cfg),
+        ("hydra.yaml", OmegaConf.create({"hydra": hydra_cfg})),
+        ("overrides.yaml", OmegaConf.create(list(hydra_cfg.overrides.task))),
+    ):
+        write_atomic(folder / name, OmegaConf.to_yaml(content))
+
+
+def _held_run(run, cfg, hydra_cfg, output_dir: Path) -> int:
+    """``run(cfg, output_dir)`` with the folder locked and the configuration saved; the exit code."""
+    try:
+        with guard.folder_lock(output_dir):
+            _save_run_config(cfg, hydra_cfg, output_dir)
+            return run(cfg, output_dir)
+    except guard.FolderInUse as error:
+        logger.error("%s", error)
+        return EXIT_BAD_INPUT
+    except guard.OutputError as error:
+        logger.error("%s; nothing was run", error)
+        return guard.EXIT_OUTPUT_ERROR
+
+
 def _hydra_app(run, config_name: str):
     import hydra
     from hydra.core.hydra_config import HydraConfig
@@ -549,7 +654,7 @@ def _hydra_app(run, config_name: str):
     def app(cfg) -> None:
         _configure_logging(cfg.log_level)
         hydra_cfg = HydraConfig.get()
-        code = run(cfg, Path(hydra_cfg.runtime.output_dir))
+        code = _held_run(run, cfg, hydra_cfg, Path(hydra_cfg.runtime.output_dir))
         if guard.native_work_abandoned():
             # a solve left running after a signal: end now (all files are written)
             logging.shutdown()

@@ -33,6 +33,11 @@ import tempfile
 import threading
 from pathlib import Path
 
+try:
+    import fcntl
+except ImportError:  # Windows: run folders are not locked
+    fcntl = None
+
 logger = logging.getLogger(__name__)
 
 EXIT_BAD_INPUT = 2
@@ -64,6 +69,55 @@ class RunInterrupted(BaseException):
 
 class OutputError(OSError):
     """An output file could not be written; the message names the path."""
+
+
+class FolderInUse(RuntimeError):
+    """Another live process is writing into the run folder; the message names it."""
+
+
+LOCK_NAME = ".spidermatch.lock"
+
+
+@contextlib.contextmanager
+def folder_lock(folder: Path):
+    """Hold ``folder`` (created if missing) for this process: a second run into it is refused.
+
+    The lock is an ``flock`` on ``folder/.spidermatch.lock``, released by the kernel when the
+    process ends however it ends, so no stale lock survives a killed run.
+
+    Raises
+    ------
+    FolderInUse
+        Another process holds the folder.
+    OutputError
+        The folder or its lock file cannot be created.
+
+    """
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        handle = open(folder / LOCK_NAME, "a+")  # noqa: SIM115 (held for the whole block)
+    except OSError as error:
+        raise OutputError(
+            f"{folder}: the run folder cannot be created ({error.strerror or error})"
+        ) from error
+    try:
+        if fcntl is not None:
+            try:
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                handle.seek(0)
+                holder = handle.read().strip() or "another process"
+                raise FolderInUse(
+                    f"{folder}: another spidermatch run ({holder}) is writing into this folder; wait for it "
+                    "to end or give another hydra.run.dir"
+                ) from None
+            handle.seek(0)
+            handle.truncate()
+            handle.write(f"process {os.getpid()}\n")
+            handle.flush()
+        yield
+    finally:
+        handle.close()
 
 
 class _State:

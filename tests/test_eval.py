@@ -59,11 +59,11 @@ def test_broken_mesh_is_reported_and_other_pairs_complete(tmp_path):
 
 
 def _finished(pairs_dir):
-    """Modification times of the pairs' result.json files that are not 'started'."""
+    """Modification times of the pairs' result.json files that are final (not 'started' or 'writing')."""
     return {
         p.parent.name: p.stat().st_mtime_ns
         for p in pairs_dir.glob("*/result.json")
-        if json.loads(p.read_text())["status"] != "started"
+        if json.loads(p.read_text())["status"] not in ("started", "writing")
     }
 
 
