@@ -30,7 +30,7 @@ from features.orientation import (
     turned_input,
 )
 from features.wks import normalise_rows
-from spidermatch.mesh import Mesh
+from spidermatch.mesh import Mesh, MeshError
 
 logger = logging.getLogger(__name__)
 
@@ -230,7 +230,19 @@ class LearnedExtractor:
 
     def __call__(self, mesh: Mesh) -> np.ndarray:
         """Return descriptors of shape (V, C_out), rows L2-normalised, float64."""
+        self._check_size(mesh)
         return self._features(self.network, mesh)
+
+    def _check_size(self, *meshes: Mesh) -> None:
+        """Refuse, naming the mesh, one with too few vertices for the functional map's eigenpairs."""
+        needed = self.loss_config.n_fmap + 1
+        for mesh in meshes:
+            if mesh.n_verts < needed:
+                raise MeshError(
+                    f"{mesh.name}: {mesh.n_verts} vertices are too few for the learned features of "
+                    f"{self.checkpoint} (they need at least {needed}: n_fmap = {self.loss_config.n_fmap} "
+                    "eigenpairs); match so small a mesh with features=wks"
+                )
 
     def pair_features(self, mesh_x: Mesh, mesh_y: Mesh) -> tuple[np.ndarray, np.ndarray]:
         """Descriptors of a pair, after test-time adaptation if ``adapt_steps > 0``.
@@ -244,6 +256,7 @@ class LearnedExtractor:
         feat_y : np.ndarray, shape (V_y, C_out)
 
         """
+        self._check_size(mesh_x, mesh_y)
         if self.adapt_steps == 0:
             return self(mesh_x), self(mesh_y)
         network = self.adapt(mesh_x, mesh_y)

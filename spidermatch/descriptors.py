@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spidermatch.mesh import Mesh
+from spidermatch.mesh import Mesh, MeshError
 from spidermatch.operators import cached_operators
 
 
@@ -82,6 +82,15 @@ class WKSExtractor:
         self.use_cache = use_cache
 
     def __call__(self, mesh: Mesh) -> np.ndarray:
-        """Return WKS descriptors of shape (V, n_descr)."""
-        ops = cached_operators(mesh, k=self.n_eig, use_cache=self.use_cache)
-        return wave_kernel_signature(ops.evals, ops.evecs, self.n_descr)
+        """Return WKS descriptors of shape (V, n_descr), the same for the mesh in any unit.
+
+        The eigenpairs are those of the mesh scaled to unit area: WKS's energy scale is
+        fixed in the eigenvalues' logarithms, so without this a mesh in millimetres would get
+        other descriptors than the same mesh in metres.
+        """
+        unit = Mesh(mesh.verts / np.sqrt(mesh.area), mesh.faces, mesh.name)
+        ops = cached_operators(unit, k=self.n_eig, use_cache=self.use_cache)
+        try:
+            return wave_kernel_signature(ops.evals, ops.evecs, self.n_descr)
+        except ValueError as error:
+            raise MeshError(f"{mesh.name}: no WKS descriptors ({error})") from error

@@ -276,6 +276,9 @@ def _load_operators(path: Path) -> Operators:
             ).tocsr()
 
         frames = data["frames"] if "frames" in data else None
+        for name in data.files:
+            if data[name].dtype.kind == "f" and not np.isfinite(data[name]).all():
+                raise ValueError(f"{name} holds NaN or infinite values")
         return Operators(
             matrix("laplacian"),
             data["mass"],
