@@ -24,7 +24,13 @@ import numpy as np
 from spidermatch.dense import DenseMap, feature_nearest_neighbours
 from spidermatch.guard import atomic_path
 from spidermatch.mesh import Mesh
-from spidermatch.metrics import consistency, geodesic_errors, vertex_map_consistency
+from spidermatch.metrics import (
+    consistency,
+    geodesic_errors,
+    sampled_faces,
+    scored_face_count,
+    vertex_map_consistency,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -44,6 +50,16 @@ def read_dense_map(path: str | os.PathLike) -> DenseMap:
     """Load a ``dense_map.npz`` written by :func:`write_dense_outputs`."""
     with np.load(path) as data:
         return DenseMap(data["vertex"], data["face"], data["bary"], str(data["method"]))
+
+
+NEAREST_NEIGHBOUR_PRODUCTS = 8e10
+"""Multiply-adds the features' nearest-neighbour map may cost (queries x V_Y x D; a few seconds)."""
+
+
+def nearest_neighbour_faces(n_target: int, n_features: int) -> int:
+    """Source faces whose features' nearest neighbours fit :data:`NEAREST_NEIGHBOUR_PRODUCTS` (>= 500)."""
+    queries = NEAREST_NEIGHBOUR_PRODUCTS / max(n_target * n_features, 1)
+    return max(int(queries // 3), 500)  # a sparse sample of faces has about three vertices each
 
 
 def dense_figures(
@@ -70,17 +86,31 @@ def dense_figures(
     -------
     figures : dict
         ``{"method", "dense": {tears, flips, flipped, degenerate[, geodesic_error]},
-        "nearest_neighbour": {...}, "metrics_time_s"}``, JSON-ready.
+        "nearest_neighbour": {...}, "scored_faces": {dense, nearest_neighbour}, "metrics_time_s"}``,
+        JSON-ready. A large source is scored on a fixed sample of its faces
+        (:func:`~spidermatch.metrics.scored_face_count`: fewer against larger targets), and
+        the features' map on as many as :func:`nearest_neighbour_faces` allows, so that the
+        figures never cost more than the match.
     errors : np.ndarray, shape (K,), or None
         The dense map's error at each reference point (with ground truth).
 
     """
     start = time.perf_counter()
-    nearest = feature_nearest_neighbours(source_features, target_features)
+    faces = sampled_faces(source, scored_face_count(target.n_verts))
+    nn_faces = sampled_faces(source, nearest_neighbour_faces(target.n_verts, np.shape(target_features)[1]))
+    scored = np.arange(source.n_verts) if nn_faces is None else np.unique(source.faces[nn_faces])
+    if source_corr is not None:
+        scored = np.union1d(scored, source_corr)
+    nearest = np.zeros(source.n_verts, dtype=np.int64)  # the features' map, where it is scored
+    nearest[scored] = feature_nearest_neighbours(np.asarray(source_features)[scored], target_features)
     figures = {
         "method": dense.method,
-        "dense": consistency(source, target, dense.points(target), dense.face, dense.bary).as_dict(),
-        "nearest_neighbour": vertex_map_consistency(source, target, nearest).as_dict(),
+        "dense": consistency(source, target, dense.points(target), dense.face, dense.bary, faces).as_dict(),
+        "nearest_neighbour": vertex_map_consistency(source, target, nearest, nn_faces).as_dict(),
+        "scored_faces": {
+            "dense": source.n_faces if faces is None else int(faces.size),
+            "nearest_neighbour": source.n_faces if nn_faces is None else int(nn_faces.size),
+        },
     }
     errors = None
     if source_corr is not None and target_corr is not None:
