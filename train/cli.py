@@ -9,6 +9,7 @@ from pathlib import Path
 import hydra
 from hydra.core.config_store import ConfigStore
 from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from spidermatch.datasets import DatasetError
@@ -43,12 +44,20 @@ def train_main(cfg: DictConfig) -> float:
         kind = type(error).__name__ if not isinstance(error, (DatasetError, MeshError)) else "data"
         print(f"spidermatch-train: error ({kind}): {error}", file=sys.stderr)
         raise SystemExit(2) from error
-    status = "interrupted" if result.interrupted else "finished"
+    except KeyboardInterrupt:  # a second Ctrl-C: stop at once, without a traceback
+        print(
+            f"spidermatch-train: aborted at once; the last checkpoints saved are in {out_dir}",
+            file=sys.stderr,
+        )
+        raise SystemExit(130) from None
+    status = f"interrupted (exit {result.exit_code})" if result.interrupted else "finished"
     figure = "validation error" if result.criterion == "val_error" else "label-free validation loss"
     print(
         f"{status} at step {result.step}: last {figure} {result.last_val:.4f}, "
         f"best {result.best_val:.4f}; checkpoints in {out_dir}"
     )
+    if result.interrupted and HydraConfig.get().mode != RunMode.MULTIRUN:
+        raise SystemExit(result.exit_code)  # a pre-empted job must not look finished
     return result.best_val
 
 

@@ -88,9 +88,11 @@ class TrainResult:
     best_val, last_val : float
         Best and most recent value of the selection figure (nan if never validated).
     interrupted : bool
-        The run stopped early on Ctrl-C (``last.pt`` holds its state).
+        The run stopped early on SIGINT or SIGTERM (``last.pt`` holds its state).
     criterion : str
         The selection figure: ``"val_error"`` (labelled) or ``"val_unsup"`` (label-free).
+    stop_signal : int
+        The signal that stopped the run (0 if none).
     """
 
     step: int
@@ -99,6 +101,12 @@ class TrainResult:
     last_val: float
     interrupted: bool = False
     criterion: str = "val_error"
+    stop_signal: int = 0
+
+    @property
+    def exit_code(self) -> int:
+        """0 for a finished run; 128 + the signal for an interrupted one (130 Ctrl-C, 143 SIGTERM)."""
+        return 128 + self.stop_signal if self.interrupted else 0
 
 
 def new_state(config: TrainConfig) -> TrainingState:
@@ -309,10 +317,10 @@ def validate(
 def stop_on_interrupt():
     """Turn the first SIGINT (Ctrl-C) or SIGTERM into a request to stop after the current step.
 
-    Yields a one-element list whose item becomes True when a stop was requested;
-    a second Ctrl-C interrupts at once.
+    Yields a one-element list whose item becomes the signal's number when a stop was
+    requested (0 until then); a second signal interrupts at once (``KeyboardInterrupt``).
     """
-    requested = [False]
+    requested = [0]
     if threading.current_thread() is not threading.main_thread():
         yield requested
         return
@@ -320,7 +328,7 @@ def stop_on_interrupt():
     def handler(signum, frame):
         if requested[0]:
             raise KeyboardInterrupt
-        requested[0] = True
+        requested[0] = int(signum)
         name = signal.Signals(signum).name
         logger.warning("%s: stopping after this step and saving last.pt (Ctrl-C again to abort)", name)
 
@@ -401,7 +409,7 @@ def run_training(
         save_checkpoint(out_dir / "last.pt", state, config)
         logger.warning("stopped at step %d; continue with resume=%s", state.step, out_dir / "last.pt")
     criterion = validation.criterion if validation is not None else "val_error"
-    return TrainResult(state.step, losses, state.best_val, last_val, stop[0], criterion)
+    return TrainResult(state.step, losses, state.best_val, last_val, bool(stop[0]), criterion, stop[0])
 
 
 def orientation_reference(shape: TrainShape, config: TrainConfig) -> dict[str, Any] | None:
