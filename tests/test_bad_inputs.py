@@ -1,0 +1,475 @@
+"""Cases of the bad-input and fault audit (issue 31), one test or more each, on meshes the tests make.
+
+1 inconsistent orientation, 2 a model too large for memory, 3 options checked before the
+solve and later stages that fail, 4 stale outputs and a locked run folder, 5 "optimal" only
+within 1e-3, 6 an interrupted training's exit code, 7 the Python API's checks, 8 messages.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from hydra import compose, initialize_config_module
+
+from spidermatch import guard
+from spidermatch.cli import run_eval, run_match
+from spidermatch.datasets import SyntheticShapes, write_dataset
+from spidermatch.io import load_mesh, read_vts, save_mesh
+from spidermatch.mesh import Mesh, MeshError, make_mesh
+from spidermatch.validate import OptionError
+
+SMALL = ["data.n_verts=700", "resolution=60", "output.png=false"]
+ROOT = Path(__file__).parents[1]
+
+
+def config(name, overrides):
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        return compose(config_name=name, overrides=overrides)
+
+
+def result_of(folder: Path) -> dict:
+    return json.loads((folder / "result.json").read_text())
+
+
+def creature(seed: int = 0, n_verts: int = 700) -> Mesh:
+    shapes = SyntheticShapes(n_shapes=1, n_verts=n_verts, seed=seed)
+    return shapes.load(shapes.names[0]).mesh
+
+
+def files_pair(tmp_path, source: Mesh, target: Mesh) -> list[str]:
+    save_mesh(source, tmp_path / "source.off")
+    save_mesh(target, tmp_path / "target.off")
+    return [f"source={tmp_path / 'source.off'}", f"target={tmp_path / 'target.off'}"]
+
+
+def run_files(tmp_path, pair, *extra, out="run"):
+    folder = tmp_path / out
+    return run_match(config("match", [*pair, "resolution=60", "output.png=false", *extra]), folder), folder
+
+
+def flipped_every_second(mesh: Mesh) -> np.ndarray:
+    faces = mesh.faces.copy()
+    faces[::2] = faces[::2, ::-1]
+    return faces
+
+
+def moebius_strip(n: int = 20):
+    verts, faces = [], []
+    for i in range(n):
+        angle = 2 * np.pi * i / n
+        for side in (-0.3, 0.3):
+            radius = 1 + side * np.cos(angle / 2)
+            verts.append([radius * np.cos(angle), radius * np.sin(angle), side * np.sin(angle / 2)])
+    for i in range(n):
+        a, b = 2 * i, 2 * i + 1
+        c, d = (2 * (i + 1), 2 * (i + 1) + 1) if i + 1 < n else (1, 0)  # the half twist
+        faces += [[a, b, d], [a, d, c]]
+    return np.array(verts), np.array(faces)
+
+
+# 1. inconsistently oriented faces: repaired before any work, reported; a Moebius strip refused
+
+
+def test_inconsistent_orientation_is_repaired_to_the_outward_one():
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    mesh = make_mesh(sphere.vertices, flipped_every_second(Mesh(sphere.vertices, sphere.faces)), "flipped")
+    assert np.array_equal(mesh.faces, sphere.faces)
+    assert len(mesh.notes) == 1 and "160 of 320 faces" in mesh.notes[0]
+    few = sphere.faces.copy()
+    few[:3] = few[:3, ::-1]
+    assert np.array_equal(make_mesh(sphere.vertices, few).faces, sphere.faces)
+    assert make_mesh(sphere.vertices, sphere.faces).notes == ()
+
+
+def test_open_surface_keeps_the_orientation_most_faces_share():
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    keep = sphere.vertices[:, 2] > -0.5
+    faces = sphere.faces[keep[sphere.faces].all(axis=1)]
+    used = np.unique(faces)
+    faces = np.searchsorted(used, faces)
+    flipped = faces.copy()
+    flipped[:5] = flipped[:5, ::-1]
+    mesh = make_mesh(sphere.vertices[used], flipped, "cap")
+    assert np.array_equal(mesh.faces, faces) and "5 of" in mesh.notes[0]
+
+
+def test_non_orientable_surface_is_refused_naming_the_mesh():
+    verts, faces = moebius_strip()
+    with pytest.raises(MeshError, match="moebius.off: the surface is not orientable"):
+        make_mesh(verts, faces, "moebius.off")
+
+
+def test_flipped_mesh_file_matches_and_says_so(tmp_path):
+    mesh = creature()
+    pair = files_pair(tmp_path, Mesh(mesh.verts, flipped_every_second(mesh)), creature(1))
+    code, folder = run_files(tmp_path, pair)
+    result = result_of(folder)
+    assert code == 0 and result["status"] == "optimal", result
+    assert any("were reversed so that all faces share one orientation" in w for w in result["warnings"])
+
+
+def test_eval_over_a_folder_with_a_flipped_mesh_finishes_every_pair(tmp_path):
+    root = write_dataset(SyntheticShapes(n_shapes=3, n_verts=600), tmp_path / "data")
+    path = root / "off" / "creature_001.off"
+    mesh = load_mesh(path)
+    save_mesh(Mesh(mesh.verts, flipped_every_second(mesh)), path)
+    (tmp_path / "pairs.txt").write_text("creature_000 creature_001\ncreature_001 creature_002\n")
+    cfg = config("eval", [f"dataset={root}", f"pairs_file={tmp_path / 'pairs.txt'}", "resolution=40"])
+    assert run_eval(cfg, tmp_path / "eval") == 0
+    summary = json.loads((tmp_path / "eval" / "summary.json").read_text())
+    assert summary["statuses"] == {"optimal": 2}, summary
+
+
+# 2. a model too large for memory is refused before anything is built
+
+
+def test_model_estimate_bounds_the_real_column_count():
+    from spidermatch.model_size import expected_columns
+    from spidermatch.pipeline import MatchSettings, prepare
+
+    source, target = creature(0, 900), creature(1, 900)
+    features = (np.ones((source.n_verts, 4)), np.ones((target.n_verts, 4)))
+    for resolution in (60, 200):
+        settings = MatchSettings(resolution=resolution, strategy="colgen", dense=None)
+        low_x, low_y, _, _, model = prepare(source, target, *features, settings, {})
+        expected = expected_columns(low_x.mesh.n_faces, low_y.mesh.n_faces)
+        assert model.n_vars <= expected <= 1.3 * model.n_vars, (resolution, model.n_vars, expected)
+
+
+def test_too_large_a_model_is_refused_naming_resolution(tmp_path, monkeypatch):
+    from spidermatch import model_size
+
+    monkeypatch.setattr(model_size, "available_memory", lambda: 2 << 30)
+    pair = files_pair(tmp_path, creature(0, 3000), creature(1, 3000))
+    code, folder = run_files(tmp_path, pair, "resolution=100000", "solver.strategy=rcfix")
+    result = result_of(folder)
+    assert code == 2 and result["status"] == "input_error", result
+    assert "resolution=100000: matching at" in result["error"] and "choose resolution=" in result["error"]
+    assert not (folder / "matches.csv").exists()
+
+
+def test_largest_fitting_resolution_fits():
+    from spidermatch.model_size import check_model_fits, largest_fitting_resolution
+
+    room = 8 << 30
+    for strategy in ("rcfix", "colgen"):
+        fits = largest_fitting_resolution(room, strategy)
+        check_model_fits((10**6, 10**6), fits, strategy, room=room)
+        with pytest.raises(OptionError, match=f"resolution={fits + 1000}"):
+            check_model_fits((10**6, 10**6), fits + 1000, strategy, room=room)
+
+
+# 3. options checked before any work; a later stage that fails keeps the certified matching
+
+
+@pytest.mark.parametrize(
+    "override, named",
+    [
+        ("dense.radius=abc", "dense.radius='abc'"),
+        ("dense.smoothing=abc", "dense.smoothing='abc'"),
+        ("dense.n_neighbours=2.5", "dense.n_neighbours=2.5"),
+        ("dense.distance_weight=abc", "dense.distance_weight='abc'"),
+        ("output.png=maybe", "output.png='maybe'"),
+        ("target=[1,2]", "target=[1, 2]: must be one file path"),
+        ("target={a:1}", "must be one file path"),
+    ],
+)
+def test_bad_later_stage_options_are_refused_before_the_solve(tmp_path, override, named):
+    folder = tmp_path / "run"
+    code = run_match(config("match", [*SMALL, "source=a.off", "target=b.off", override]), folder)
+    result = result_of(folder)
+    assert code == 2 and result["status"] == "input_error", result
+    assert named in result["error"], result["error"]
+
+
+@pytest.mark.parametrize("failure", [MemoryError(), TypeError("a bug")])
+def test_a_failing_dense_stage_keeps_matches_and_records_the_stage(tmp_path, monkeypatch, failure):
+    import spidermatch.cli
+
+    def fail(*args, **kwargs):
+        raise failure
+
+    monkeypatch.setattr(spidermatch.cli, "add_dense_map", fail)
+    folder = tmp_path / "run"
+    code = run_match(config("match", SMALL), folder)
+    result = result_of(folder)
+    assert code == guard.EXIT_OUTPUT_ERROR, result
+    assert result["status"] == "output_error" and result["failed_stage"] == "dense"
+    assert result["solver_status"] == "optimal" and result["objective"] is not None
+    assert (folder / "matches.csv").is_file() and not (folder / "dense_matches.csv").exists()
+
+
+# 4. a reused run folder: no stale outputs; a second live run is refused
+
+
+def test_a_reused_folder_keeps_no_outputs_of_the_earlier_run(tmp_path):
+    folder = tmp_path / "run"
+    assert run_match(config("match", SMALL), folder) == 0
+    assert (folder / "dense_matches.csv").is_file()
+    assert run_match(config("match", [*SMALL, "dense.enabled=false", "data.source_seed=3"]), folder) == 0
+    assert not (folder / "dense_matches.csv").exists() and not (folder / "dense_map.npz").exists()
+    assert (folder / "matches.csv").is_file()
+
+
+def test_a_folder_held_by_a_live_run_is_refused(tmp_path):
+    folder = tmp_path / "run"
+    command = [sys.executable, "-c", "from spidermatch.cli import match_main; match_main()"]
+    with guard.folder_lock(folder):
+        run = subprocess.run(
+            [*command, *SMALL, f"hydra.run.dir={folder}"],
+            capture_output=True,
+            text=True,
+            env={**os.environ, "PYTHONPATH": str(ROOT)},
+            timeout=300,
+        )
+    assert run.returncode == 2, run.stderr[-2000:]
+    assert "another spidermatch run (process" in run.stdout + run.stderr
+    assert not (folder / "result.json").exists() and not (folder / ".hydra").exists()
+
+
+def test_a_free_folder_gets_its_config_saved(tmp_path):
+    folder = tmp_path / "run"
+    command = [sys.executable, "-c", "from spidermatch.cli import match_main; match_main()"]
+    run = subprocess.run(
+        [*command, *SMALL, "dense.enabled=false", f"hydra.run.dir={folder}"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    overrides = (folder / ".hydra" / "overrides.yaml").read_text()
+    assert "dense.enabled=false" in overrides and (folder / ".hydra" / "config.yaml").is_file()
+
+
+# 5. "optimal" means a gap of at most 1e-3
+
+
+def test_a_loose_requested_gap_is_not_called_optimal():
+    from spidermatch.pipeline import OPTIMAL_GAP, within_optimal_gap
+    from spidermatch.solve.highs import SolveResult
+
+    loose = SolveResult("optimal", None, 1.13, 1.0, 0.115, 1.0, 1, 1, 1, "Optimal")
+    judged = within_optimal_gap(loose)
+    assert judged.status == "feasible" and not judged.proven_optimal
+    assert "within the requested gap" in judged.message
+    tight = SolveResult("optimal", None, 1.0, 1.0 - OPTIMAL_GAP / 2, OPTIMAL_GAP / 2, 1.0, 1, 1, 1, "Optimal")
+    assert within_optimal_gap(tight) is tight
+    near_zero = SolveResult("optimal", None, 1e-9, 0.0, 1.0, 1.0, 1, 1, 1, "Optimal")
+    assert within_optimal_gap(near_zero).status == "optimal"
+
+
+def test_api_rejects_a_gap_of_one_or_more():
+    import spidermatch
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    with pytest.raises(OptionError, match="mip_rel_gap=5"):
+        spidermatch.match((sphere.vertices, sphere.faces), (sphere.vertices, sphere.faces), mip_rel_gap=5)
+
+
+# 6. an interrupted training exits 130/143, not 0
+
+
+def test_interrupted_training_exit_codes():
+    from train.loop import TrainResult
+
+    assert TrainResult(10, [], 0.1, 0.1).exit_code == 0
+    assert TrainResult(10, [], 0.1, 0.1, True, "val_error", signal.SIGTERM).exit_code == 143
+    assert TrainResult(10, [], 0.1, 0.1, True, "val_error", signal.SIGINT).exit_code == 130
+
+
+def test_sigterm_stops_training_with_exit_143(tmp_path):
+    folder = tmp_path / "train"
+    overrides = [
+        "data.synthetic_shapes=4",
+        "data.synthetic_verts=300",
+        "data.val_points=30",
+        "model.width=8",
+        "model.n_blocks=1",
+        "loss.n_fmap=12",
+        "run.n_steps=100000",
+        "run.progress=false",
+        "run.log_every=1",
+        f"hydra.run.dir={folder}",
+    ]
+    command = [sys.executable, "-c", "from train.cli import train_main; train_main()", *overrides]
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "SPIDERMATCH_CACHE_DIR": str(tmp_path / "cache")}
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    try:
+        losses = folder / "losses.csv"
+        while process.poll() is None and not (losses.is_file() and len(losses.read_text().splitlines()) > 2):
+            time.sleep(0.2)  # until training has logged steps
+        process.send_signal(signal.SIGTERM)
+        output, _ = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert process.returncode == 143, output[-2000:]
+    assert "interrupted (exit 143)" in output and (folder / "last.pt").is_file()
+
+
+# 7. the Python API checks as the command line does
+
+
+@pytest.mark.parametrize(
+    "keywords, named",
+    [
+        ({"resolution": 150.9}, "resolution=150.9"),
+        ({"resolution": "150"}, "resolution='150'"),
+        ({"time_limit": float("nan")}, "time_limit=nan"),
+        ({"strategy": "magic"}, "strategy='magic'"),
+    ],
+)
+def test_api_refuses_what_the_command_line_refuses(keywords, named):
+    import spidermatch
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    with pytest.raises(OptionError, match=named):
+        spidermatch.match((sphere.vertices, sphere.faces), (sphere.vertices, sphere.faces), **keywords)
+
+
+@pytest.mark.parametrize(
+    "verts, says",
+    [
+        (np.array([["a", "b", "c"]] * 4, dtype=object), "dtype object"),
+        (np.eye(4, 3) + 0j, "complex numbers"),
+    ],
+)
+def test_api_names_the_mesh_with_unusable_coordinates(verts, says):
+    import spidermatch
+
+    faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    with pytest.raises(MeshError, match=f"source mesh .*{says}"):
+        spidermatch.match((verts, faces), (np.eye(4, 3), faces))
+
+
+def test_features_of_any_scale_give_the_same_matching():
+    import spidermatch
+
+    source, target = creature(0, 600), creature(1, 600)
+    rng = np.random.default_rng(0)
+    features = (rng.normal(size=(source.n_verts, 8)), rng.normal(size=(target.n_verts, 8)))
+    plain = spidermatch.match(source, target, features=features, resolution=60)
+    for scale in (1e200, 1e-200):
+        scaled = spidermatch.match(
+            source, target, features=(features[0] * scale, features[1] * scale), resolution=60
+        )
+        assert np.array_equal(scaled.matches, plain.matches), scale
+    assert len(np.unique(plain.matches[:, 1])) > 10
+
+
+# 8. messages that say what is wrong, and inputs read as the tools that wrote them meant
+
+
+def test_obj_with_groups_materials_and_quads_is_read_as_one_mesh(tmp_path):
+    box = trimesh.creation.box()
+    verts = box.vertices
+    quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    lines = ["mtllib box.mtl", "o Box"] + [f"v {x} {y} {z}" for x, y, z in verts]
+    lines += ["vt 0 0", "vn 0 0 1", "usemtl red", "s off"]
+    lines += [f"f {a + 1}/1/1 {b + 1}/1/1 {c + 1}/1/1 {d + 1}/1/1" for a, b, c, d in quads[:3]]
+    lines += ["o Lid", "g lid", "usemtl blue"] + [
+        f"f {a - 8} {b - 8} {c - 8} {d - 8}" for a, b, c, d in quads[3:]
+    ]
+    path = tmp_path / "box.obj"
+    path.write_text("\n".join(lines) + "\n")
+    mesh = load_mesh(path)
+    assert mesh.n_verts == 8 and mesh.n_faces == 12
+    assert any("6 faces with more than three corners were split" in note for note in mesh.notes)
+    assert make_mesh(mesh.verts, mesh.faces).notes == ()  # one consistent orientation
+
+
+def test_a_folder_given_as_a_mesh_says_so(tmp_path):
+    (tmp_path / "shape.off").mkdir()
+    with pytest.raises(MeshError, match="shape.off: is a folder, not a mesh file"):
+        load_mesh(tmp_path / "shape.off")
+
+
+def test_a_vts_with_two_columns_names_file_and_line(tmp_path):
+    path = tmp_path / "two.vts"
+    path.write_text("1 1\n2 2\n")
+    with pytest.raises(MeshError, match="two.vts:1: 2 numbers on one line"):
+        read_vts(path)
+
+
+def test_a_nan_poisoned_operator_cache_is_recomputed(tmp_path, monkeypatch, caplog):
+    from spidermatch.operators import cache_dir, cached_operators, operator_cache_key
+
+    monkeypatch.setenv("SPIDERMATCH_CACHE_DIR", str(tmp_path / "cache"))
+    mesh = creature(0, 400)
+    clean = cached_operators(mesh, k=16)
+    path = cache_dir() / f"{operator_cache_key(mesh, 16, False)}.npz"
+    with np.load(path) as data:
+        arrays = dict(data)
+    arrays["evecs"][0, 0] = np.nan
+    np.savez(path, **arrays)
+    again = cached_operators(mesh, k=16)
+    assert np.isfinite(again.evecs).all() and np.allclose(np.abs(again.evecs), np.abs(clean.evecs), atol=1e-6)
+    assert "ignoring unreadable operator cache" in caplog.text
+
+
+def test_wks_is_the_same_in_any_unit():
+    from spidermatch.descriptors import WKSExtractor
+
+    mesh = creature(0, 500)
+    wks = WKSExtractor(use_cache=False)
+    plain = wks(mesh)
+    for scale in (1e-3, 1e3, 1e30):
+        assert np.abs(wks(Mesh(mesh.verts * scale, mesh.faces, "scaled")) - plain).max() < 1e-8, scale
+
+
+def test_learned_features_name_a_mesh_too_small(tiny_checkpoint, isolated_torch):
+    from features.learned import LearnedExtractor
+
+    tetra = make_mesh(np.eye(4, 3), np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]), "tetra.off")
+    with pytest.raises(MeshError, match="tetra.off: 4 vertices are too few for the learned features"):
+        LearnedExtractor(tiny_checkpoint)(tetra)
+
+
+# the loader's fuzz, extended: orientation, groups and materials, scale
+
+
+def _scrambled_obj(mesh: Mesh, rng) -> tuple[str, np.ndarray, float]:
+    """An OBJ text of ``mesh`` with random faces reversed, group/material lines and a scale."""
+    scale = float(10.0 ** rng.integers(-6, 7))
+    faces = mesh.faces.copy()
+    reverse = rng.random(len(faces)) < rng.random()
+    faces[reverse] = faces[reverse, ::-1]
+    lines = [f"v {x} {y} {z}" for x, y, z in mesh.verts * scale]
+    decorations = ["o part", "g group", "usemtl skin", "s 1", "vt 0.5 0.5", "vn 0 0 1", "mtllib a.mtl"]
+    for a, b, c in faces:
+        if rng.random() < 0.05:
+            lines.append(str(rng.choice(decorations)))
+        lines.append(f"f {a + 1} {b + 1} {c + 1}")
+    return "\n".join(lines) + "\n", reverse, scale
+
+
+def test_scrambled_but_repairable_obj_files_load_as_the_original_surface(tmp_path):
+    from spidermatch.mesh import faces_to_flip
+
+    rng = np.random.default_rng(31)
+    originals = [creature(seed, 300) for seed in range(3)] + [Mesh(*_sphere(1))]
+    for case in range(40):
+        original = originals[case % len(originals)]
+        text, reversed_faces, scale = _scrambled_obj(original, rng)
+        path = tmp_path / f"case_{case:02d}.obj"
+        path.write_text(text)
+        mesh = load_mesh(path)
+        assert np.allclose(mesh.verts, original.verts * scale, rtol=1e-12, atol=0), case
+        assert not faces_to_flip(mesh.faces).any(), case  # one consistent orientation
+        repaired = 0 < reversed_faces.sum() < len(reversed_faces)
+        assert bool(mesh.notes) == repaired, case
+        # a repaired closed surface faces outwards, as the originals do; an unrepaired one is kept
+        expected = original.faces[:, ::-1] if reversed_faces.all() else original.faces
+        assert np.array_equal(mesh.faces, expected), case
+
+
+def _sphere(subdivisions):
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
+    return np.asarray(sphere.vertices), np.asarray(sphere.faces)
