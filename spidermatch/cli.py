@@ -145,6 +145,12 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
         feat_x, feat_y = extractor.pair_features(source, target)
     else:
         feat_x, feat_y = extractor(source), extractor(target)
+    turns = getattr(extractor, "turns", None)
+    if turns:
+        logger.info(
+            "orientation search: %s",
+            ", ".join(f"{key} turned {value:.0f} degrees" for key, value in turns.items()),
+        )
     return np.asarray(feat_x), np.asarray(feat_y), name
 
 
@@ -172,6 +178,11 @@ def result_summary(result: MatchResult, inputs: MatchInputs, feature_name: str) 
             "features": feature_name,
             "source_low_res": {"vertices": result.source.mesh.n_verts, "faces": result.source.mesh.n_faces},
             "target_low_res": {"vertices": result.target.mesh.n_verts, "faces": result.target.mesh.n_faces},
+            "normalisation": {
+                "lengths": "in units of each mesh's sqrt(surface area); outputs in the input coordinates",
+                "source_area": inputs.source.area,
+                "target_area": inputs.target.area,
+            },
             "curve_length": result.curve.length,
             "curve_self_intersections": int(result.curve.intersections.size),
             "check": {"ok": bool(result.check.ok), "problems": list(result.check.problems)}

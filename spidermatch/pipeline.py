@@ -204,6 +204,9 @@ def prepare(
     check_model_fits(
         (source.n_faces, target.n_faces), settings.resolution, settings.strategy, settings.target_augmented
     )
+    logger.info(
+        "lengths in each mesh's sqrt(area): source area %.6g, target area %.6g", source.area, target.area
+    )
     with _stage(timings, "decimate"):
         low_x = decimate(source.centred(), settings.resolution, settings.decimation)
         low_y = decimate(target.centred(), settings.resolution, settings.decimation)
@@ -220,7 +223,12 @@ def prepare(
             settings.loss,
         )
         lazy = LazyModel(
-            graph, curve, low_x.mesh.verts, low_y.mesh.verts, vertex_costs, tuple(settings.constraints)
+            graph,
+            curve,
+            low_x.mesh.verts * length_scale(source),
+            low_y.mesh.verts * length_scale(target),
+            vertex_costs,
+            tuple(settings.constraints),
         )
         if settings.strategy in LAZY_STRATEGIES:  # the full model is never built
             logger.info(
@@ -240,6 +248,16 @@ def prepare(
         model.nnz,
     )
     return low_x, low_y, curve, graph, model
+
+
+def length_scale(mesh: Mesh) -> float:
+    """The factor that brings ``mesh`` to unit surface area (1 / sqrt(area)).
+
+    Product-edge costs add the step lengths of both meshes (method.md 4): measured in
+    each mesh's own sqrt(area), a pair in any units (a target in millimetres against a
+    source in metres) gets the costs, and so the matching, of the pair in one unit.
+    """
+    return 1.0 / float(np.sqrt(mesh.area))
 
 
 def _check_features(mesh: Mesh, features: np.ndarray, role: str) -> None:

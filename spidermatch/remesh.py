@@ -79,9 +79,23 @@ def decimate(mesh: Mesh, target_faces: int, method: str = "shortest_edge") -> De
         low = make_mesh(verts, faces, name)
     except MeshError as error:
         raise MeshError(f"{error}; try a higher resolution") from error
-    _, to_full = cKDTree(mesh.verts).query(low.verts)
     logger.debug("decimated %s: %d -> %d faces", mesh.name, mesh.n_faces, low.n_faces)
-    return Decimated(low, np.asarray(to_full, dtype=np.int64))
+    return Decimated(low, nearest_vertices(mesh.verts, low.verts))
+
+
+def nearest_vertices(verts: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Index of the vertex (V, 3) nearest to each point (N, 3), ties to the lower index, (N,) int64.
+
+    A vertex collapsed to an edge's midpoint is equally far from both ends: the tie is
+    broken by index, not by rounding, so a turned or moved copy of a mesh gets the same map.
+    """
+    distance, index = cKDTree(verts).query(points, k=min(2, len(verts)))
+    distance, index = distance.reshape(len(points), -1), index.reshape(len(points), -1)
+    nearest = index[:, 0].astype(np.int64)
+    if index.shape[1] == 2:
+        tie = distance[:, 1] - distance[:, 0] <= 1e-9 * np.maximum(distance[:, 1], 1e-300)
+        nearest[tie] = np.minimum(index[tie, 0], index[tie, 1])
+    return nearest
 
 
 def _drop_degenerate_and_unused(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
