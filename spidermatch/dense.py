@@ -59,6 +59,10 @@ from spidermatch.surface import (
 
 logger = logging.getLogger(__name__)
 
+CANDIDATE_CELLS = 2_000_000
+"""Point-face pairs searched at once when image points are located among their patches' faces
+(bounds the memory whatever the ratio of full to low resolution; about 300 MB)."""
+
 METHODS = ("interp", "interp_features", "zoomout", "zoomout_local", "zoomout_accept")
 
 
@@ -134,7 +138,8 @@ def settings_problems(values: Mapping) -> list[str]:
         f"{key}: unknown (choose from {', '.join(sorted(known))})" for key in values if key not in known
     ]
     if "method" in values and values["method"] not in METHODS:
-        problems.append(f"method={values['method']!r}: unknown dense method; choose from {', '.join(METHODS)}")
+        choices = ", ".join(METHODS)
+        problems.append(f"method={values['method']!r}: unknown dense method; choose from {choices}")
     for key, least in WHOLE_SETTINGS.items():
         if key in values and (not _is_whole(values[key]) or values[key] < least):
             problems.append(f"{key}={values[key]!r}: must be a whole number >= {least}")
@@ -292,8 +297,15 @@ def interpolated_points(
     target_labels = coarse_labels(target, low_y)
     target_face, target_bary = project_onto_coarse(target, low_y, clip=False, labels=target_labels)
     projected = surface_positions(low_y.mesh, target_face, target_bary)
-    patches = faces_by_label(target, target_labels, low_y.mesh.n_verts)[images].reshape(len(images), -1)
-    face, bary = closest_triangle_points(projected, target.faces, blended, candidates=patches)
+    table = faces_by_label(target, target_labels, low_y.mesh.n_verts)
+    face, bary = np.empty(len(images), dtype=np.int64), np.empty((len(images), 3))
+    rows = max(1, CANDIDATE_CELLS // (images.shape[1] * table.shape[1]))  # a block's (rows, C) table
+    for start in range(0, len(images), rows):
+        block = slice(start, start + rows)
+        patches = table[images[block]].reshape(len(images[block]), -1)
+        face[block], bary[block] = closest_triangle_points(
+            projected, target.faces, blended[block], candidates=patches
+        )
     local_edge = mean_incident_edge_length(low_y.mesh)[images].mean(axis=1)
     return face, bary, local_edge
 
