@@ -52,6 +52,58 @@ def _run_folder(cfg) -> str | None:
         return None
 
 
+def option_names(cfg) -> list[str]:
+    """Every option of a composed configuration as a dotted name (``solver.time_limit``), Hydra's apart."""
+    from omegaconf import DictConfig, OmegaConf
+
+    names = []
+
+    def walk(node, prefix: str) -> None:
+        for key in node.keys() if isinstance(node, DictConfig) else ():
+            name = f"{prefix}{key}"
+            if name == "hydra":
+                continue
+            names.append(name)
+            child = OmegaConf.select(node, str(key), throw_on_resolution_failure=False)
+            walk(child, f"{name}.")
+
+    walk(cfg, "")
+    return names
+
+
+def _key(override: str) -> str:
+    return override.split("=", 1)[0].lstrip("+~")
+
+
+def unknown_option_problem(config_name: str, overrides: list[str]) -> str | None:
+    """An override that names no option of the configuration, with the nearest real name.
+
+    Covers both ``resolutoin=250`` (Hydra's own hint, "use +resolutoin=250", would add a key
+    that nothing reads and run with the default) and ``+resolutoin=250``. ``hydra.*`` keys
+    are Hydra's and left to it.
+    """
+    import difflib
+
+    plain = [item for item in overrides if "=" in item and not item.startswith(("+", "~"))]
+    groups = [item for item in plain if "." not in _key(item)]
+    cfg, _ = compose_problem(config_name, groups)
+    if cfg is None:
+        cfg, _ = compose_problem(config_name, [])
+    if cfg is None:
+        return None
+    names = option_names(cfg)
+    for item in overrides:
+        key = _key(item)
+        if "=" not in item or key.startswith("hydra") or "/" in key or key in names:
+            continue  # Hydra's own keys and config-group paths are Hydra's to check
+        if item.startswith(("~", "++")):
+            continue
+        close = difflib.get_close_matches(key, names, n=1, cutoff=0.6)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        return f"unknown option {key!r}{hint}: nothing reads it, so it is refused rather than ignored"
+    return None
+
+
 def exit_on_bad_command_line(config_name: str, argv: list[str]) -> None:
     """Exit 2 for an unknown option or value syntax, 6 for an unusable run folder (single runs).
 
@@ -59,7 +111,10 @@ def exit_on_bad_command_line(config_name: str, argv: list[str]) -> None:
     """
     if any(arg.startswith("-") for arg in argv):
         return
-    cfg, problem = compose_problem(config_name, list(argv))
+    problem = unknown_option_problem(config_name, list(argv))
+    cfg = None
+    if problem is None:
+        cfg, problem = compose_problem(config_name, list(argv))
     if problem:
         print(f"spidermatch-{config_name}: bad option: {problem}", file=sys.stderr)
         sys.exit(EXIT_BAD_INPUT)
