@@ -275,13 +275,15 @@ def run_case(case: Case, work: Path, memory_gib: float, timeout: float) -> dict:
     code = os.waitstatus_to_exitcode(status)
     text = log.read_text(errors="replace")
     result = run_dir / "result.json"
-    status_text = json.loads(result.read_text()).get("status") if result.is_file() else "-"
+    report = json.loads(result.read_text()) if result.is_file() else {}
+    status_text = report.get("status", "-")
     message = first_problem(text)
     row = {
         "case": case.name,
         "what": case.what,
         "exit_code": code,
         "status": status_text,
+        "gap": "-" if report.get("gap") is None else f"{report['gap']:.2g}",
         "traceback": "Traceback" in text,
         "peak_mib": round(usage.ru_maxrss / 1024),
         "wall_s": round(time.perf_counter() - start, 1),

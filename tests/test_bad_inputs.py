@@ -473,3 +473,42 @@ def test_scrambled_but_repairable_obj_files_load_as_the_original_surface(tmp_pat
 def _sphere(subdivisions):
     sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
     return np.asarray(sphere.vertices), np.asarray(sphere.faces)
+
+
+# units and pose: a target in millimetres, turned and moved, gets the matching of the clean pair
+
+
+def test_scaled_turned_and_moved_target_gets_the_same_matching(rng):
+    import spidermatch
+    from tests.conftest import random_rotation
+
+    source, target = creature(0, 800), creature(1, 800)
+    moved = Mesh(1000.0 * target.verts @ random_rotation(rng).T + [250.0, -40.0, 1200.0], target.faces, "mm")
+    clean = spidermatch.match(source, target, resolution=80)
+    scaled = spidermatch.match(source, moved, resolution=80)
+    assert clean.status == scaled.status == "optimal"
+    assert scaled.objective == pytest.approx(clean.objective, rel=1e-6)
+    assert np.array_equal(scaled.matches, clean.matches)
+    # the dense map may differ where two target vertices are equally good (rounding decides)
+    apart = np.linalg.norm(target.verts[scaled.dense_map] - target.verts[clean.dense_map], axis=1)
+    assert np.mean(scaled.dense_map == clean.dense_map) > 0.95
+    assert apart.mean() / np.sqrt(target.area) < 0.002, apart.mean() / np.sqrt(target.area)
+
+
+# a misspelt option: refused with the nearest real name, also when Hydra's '+' hint is followed
+
+
+@pytest.mark.parametrize("override", ["resolutoin=250", "+resolutoin=250"])
+def test_a_misspelt_option_names_the_real_one(override):
+    from spidermatch.cli_options import unknown_option_problem
+
+    problem = unknown_option_problem("match", ["source=a.off", override])
+    assert "unknown option 'resolutoin' (did you mean resolution?)" in problem
+
+
+def test_real_options_and_group_choices_are_not_flagged():
+    from spidermatch.cli_options import unknown_option_problem
+
+    overrides = ["features=learned", "features.adapt_steps=20", "dense.radius=3", "hydra/launcher=joblib"]
+    assert unknown_option_problem("match", [*overrides, "resolution=100", "hydra.run.dir=x"]) is None
+    assert unknown_option_problem("eval", ["dataset=d", "n_pairs=3"]) is None

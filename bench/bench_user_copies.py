@@ -1,0 +1,194 @@
+"""Whole matches of FAUST_r pairs as users bring them: other units and poses, dense raw scans.
+
+For every pair, ``spidermatch-match`` runs (its own process, under a memory cap) on the clean
+files and on copies made the way users' files arrive:
+
+``scaled``
+    the target in millimetres (x1000), turned by a random rotation and moved;
+``sub80k``
+    both meshes Loop-subdivided twice (about 80 000 vertices) with scan noise (Gaussian,
+    0.1 of the mean edge length, along the normals);
+``sub320k``
+    three times (about 320 000 vertices), with the same noise.
+
+Loop subdivision keeps the original vertices first, so the ``corres/*.vts`` ground truth
+applies to every copy. A row holds the status, gap, objective, the sparse and the dense
+mean geodesic error, the wall time, the peak memory and every stage's time; the summary
+gives each copy's error against the clean pair's.
+
+Example (the five FAUST_r validation pairs, WKS, the default resolution):
+
+    .venv/bin/python bench/bench_user_copies.py --data ../shared/data/FAUST_r \
+        --kinds scaled sub80k --out bench/results/user_copies_faust_val_wks
+
+Writes ``<out>.json`` and ``<out>.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from bench_scaling import write_rows  # noqa: E402
+
+from spidermatch.io import load_mesh, save_mesh  # noqa: E402
+from spidermatch.mesh import Mesh  # noqa: E402
+from spidermatch.operators import vertex_normals  # noqa: E402
+
+VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
+KINDS = ("clean", "scaled", "sub80k", "sub320k")
+
+
+def random_rotation(rng) -> np.ndarray:
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    if np.linalg.det(q) < 0:
+        q[:, 0] = -q[:, 0]
+    return q
+
+
+def scan_copy(mesh: Mesh, times: int, rng) -> Mesh:
+    """``mesh`` Loop-subdivided ``times`` times, with noise along the normals (original vertices first)."""
+    import trimesh
+
+    verts, faces = mesh.verts, mesh.faces
+    for _ in range(times):
+        verts, faces = trimesh.remesh.subdivide_loop(verts, faces)
+    edges = np.linalg.norm(verts[faces[:, 0]] - verts[faces[:, 1]], axis=1)
+    noise = rng.normal(scale=0.1 * edges.mean(), size=len(verts))
+    return Mesh(verts + noise[:, None] * vertex_normals(verts, faces), faces, mesh.name)
+
+
+def copies(kind: str, source: Path, target: Path, folder: Path, seed: int) -> tuple[Path, Path]:
+    """The pair's files for ``kind`` (made in ``folder`` unless clean)."""
+    if kind == "clean":
+        return source, target
+    rng = np.random.default_rng(seed)
+    folder.mkdir(parents=True, exist_ok=True)
+    if kind == "scaled":
+        mesh = load_mesh(target)
+        moved = 1000.0 * mesh.verts @ random_rotation(rng).T + rng.uniform(-2000, 2000, size=3)
+        out = folder / f"{target.stem}_mm.off"
+        save_mesh(Mesh(moved, mesh.faces), out)
+        return source, out
+    times = {"sub80k": 2, "sub320k": 3}[kind]
+    made = []
+    for path in (source, target):
+        out = folder / f"{path.stem}_{kind}.off"
+        if not out.is_file():
+            save_mesh(scan_copy(load_mesh(path), times, rng), out)
+        made.append(out)
+    return made[0], made[1]
+
+
+def run_match(args, source: Path, target: Path, corr: tuple[Path, Path], run_dir: Path) -> dict:
+    command = [
+        str(Path(sys.executable).parent / "spidermatch-match"),
+        f"source={source}",
+        f"target={target}",
+        f"source_corr={corr[0]}",
+        f"target_corr={corr[1]}",
+        f"hydra.run.dir={run_dir}",
+        "output.png=false",
+        *(["features=learned", f"checkpoint={args.checkpoint}"] if args.checkpoint else []),
+        *([f"resolution={args.resolution}"] if args.resolution else []),
+        *args.override,
+    ]
+    cap = int(args.memory_gib * 2**30)
+    start = time.perf_counter()
+    with open(run_dir.with_suffix(".log"), "w") as log:
+        process = subprocess.Popen(
+            command,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_AS, (cap, cap)),
+        )
+        _, status, usage = os.wait4(process.pid, 0)
+    report = json.loads((run_dir / "result.json").read_text()) if (run_dir / "result.json").is_file() else {}
+    dense = (report.get("dense") or {}).get("dense") or {}
+    return {
+        "exit_code": os.waitstatus_to_exitcode(status),
+        "status": report.get("status", "-"),
+        "gap": report.get("gap"),
+        "objective": report.get("objective"),
+        "sparse_error": (report.get("geodesic_error") or {}).get("mean"),
+        "dense_error": dense.get("geodesic_error"),
+        "dense_tears": dense.get("tears"),
+        "dense_flips": dense.get("flips"),
+        "process_s": round(time.perf_counter() - start, 1),
+        "peak_mib": round(usage.ru_maxrss / 1024, 1),
+        **{f"{name}_s": value for name, value in (report.get("timings_s") or {}).items()},
+        "error": report.get("error"),
+    }
+
+
+def summary(rows: list[dict]) -> dict:
+    """Per copy kind: the largest error difference against the clean pair, worst time and memory."""
+    clean = {row["pair"]: row for row in rows if row["kind"] == "clean"}
+    out = {}
+    for kind in sorted({row["kind"] for row in rows} - {"clean"}):
+        mine = [row for row in rows if row["kind"] == kind]
+        figures = {
+            "statuses": sorted({row["status"] for row in mine}),
+            "worst_process_s": max(row["process_s"] for row in mine),
+            "worst_peak_mib": max(row["peak_mib"] for row in mine),
+        }
+        for error in ("sparse_error", "dense_error"):
+            differences = [
+                row[error] - clean[row["pair"]][error]
+                for row in mine
+                if row["pair"] in clean and row[error] is not None and clean[row["pair"]][error] is not None
+            ]
+            if differences:
+                figures[f"{error}_worst_increase"] = round(max(differences), 5)
+        out[kind] = figures
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "FAUST_r"))
+    parser.add_argument("--pairs", nargs="*", default=VALIDATION_PAIRS)
+    parser.add_argument("--kinds", nargs="*", default=["scaled"], choices=KINDS[1:])
+    parser.add_argument("--checkpoint", default=None)
+    parser.add_argument("--resolution", type=int, default=None)
+    parser.add_argument("--memory-gib", type=float, default=8.0)
+    parser.add_argument(
+        "--work", default=None, help="folder for the copies and runs (default: a new temp folder)"
+    )
+    parser.add_argument("--override", nargs="*", default=[])
+    parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "user_copies"))
+    args = parser.parse_args()
+    data, work = Path(args.data), Path(args.work or tempfile.mkdtemp(prefix="user_copies_"))
+    rows = []
+    for pair in args.pairs:
+        names = pair.split(":")
+        meshes = [data / "off" / f"{name}.off" for name in names]
+        corr = tuple(data / "corres" / f"{name}.vts" for name in names)
+        for kind in ("clean", *args.kinds):
+            source, target = copies(kind, *meshes, work / "copies", seed=sum(map(ord, pair)))
+            run_dir = work / "runs" / f"{pair.replace(':', '_')}_{kind}"
+            row = {"pair": pair, "kind": kind, **run_match(args, source, target, corr, run_dir)}
+            print(json.dumps(row), flush=True)
+            rows.append(row)
+    write_rows(Path(args.out).with_suffix(".json"), rows, {"summary": summary(rows)})
+    print(json.dumps(summary(rows), indent=2))
+
+
+if __name__ == "__main__":
+    main()
