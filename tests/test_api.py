@@ -49,7 +49,8 @@ def error_of(matches, source, target) -> float:
 def test_result_fields_and_direction(pair, from_paths):
     result = from_paths
     assert result.status == "optimal" and result.proven_optimal
-    assert result.bound <= result.objective + 1e-9 and 0 <= result.gap <= 1e-4 * (1 + 1e-9)  # HiGHS stops at the tolerance, up to rounding
+    # HiGHS stops at its tolerance, up to rounding
+    assert result.bound <= result.objective + 1e-9 and 0 <= result.gap <= 1e-4 * (1 + 1e-9)
     n_low = result.details.source.mesh.n_verts
     assert result.matches.dtype == np.int64 and result.matches.shape == (n_low, 2)
     # column 0 indexes the source (~700 vertices), column 1 the target (~900 vertices)
