@@ -109,6 +109,7 @@ def run_match(args, source: Path, target: Path, corr: tuple[Path, Path], run_dir
     ]
     cap = int(args.memory_gib * 2**30)
     start = time.perf_counter()
+    run_dir.parent.mkdir(parents=True, exist_ok=True)
     with open(run_dir.with_suffix(".log"), "w") as log:
         process = subprocess.Popen(
             command,

@@ -96,6 +96,11 @@ class Matching:
         return None if self.details is None else self.details.dense
 
     @property
+    def quality(self) -> dict | None:
+        """The verdict without ground truth: ``verdict`` ("plausible"/"suspect"), ``reasons``, figures."""
+        return None if self.details is None else self.details.quality
+
+    @property
     def proven_optimal(self) -> bool:
         """True if no matching has a lower cost than ``objective`` (within the relative gap)."""
         return self.status == "optimal"

@@ -183,6 +183,7 @@ def result_summary(result: MatchResult, inputs: MatchInputs, feature_name: str) 
                 "source_area": inputs.source.area,
                 "target_area": inputs.target.area,
             },
+            "quality": result.quality,
             "curve_length": result.curve.length,
             "curve_self_intersections": int(result.curve.intersections.size),
             "check": {"ok": bool(result.check.ok), "problems": list(result.check.problems)}
@@ -241,7 +242,28 @@ def run_pair(cfg, output_dir: Path, get_inputs, get_features, record: dict | Non
                     logger.info("wrote %s", result_path)
                 elif code == 0:
                     code = guard.EXIT_OUTPUT_ERROR
+            logger.log(logging.INFO if code == 0 else logging.ERROR, "%s", final_line(report, code))
     return code
+
+
+def final_line(report: dict, code: int) -> str:
+    """One line that ends every run: status, gap, quality verdict, error against ground truth, outputs."""
+    parts = [f"result: {report.get('status')}"]
+    if report.get("gap") is not None:
+        parts.append(f"gap {report['gap']:.1e}")
+    quality = report.get("quality")
+    if quality:
+        parts.append(
+            f"quality {quality['verdict']}" + (f" ({quality['reasons'][0]})" if quality["reasons"] else "")
+        )
+    if report.get("geodesic_error"):
+        error = f"mean geodesic error {report['geodesic_error']['mean']:.4f}"
+        dense = (report.get("dense") or {}).get("dense", {}).get("geodesic_error")
+        parts.append(error + (f" (dense {dense:.4f})" if dense is not None else ""))
+    if report.get("error") and code:
+        parts.append(f"error: {report['error']}")
+    parts.append(f"exit {code}; outputs in {report.get('output_dir')}")
+    return ", ".join(parts)
 
 
 RUN_OUTPUTS = (

@@ -33,6 +33,7 @@ from spidermatch.lazy_model import LazyModel
 from spidermatch.mesh import Mesh
 from spidermatch.model_size import check_model_fits
 from spidermatch.product_graph import ProductGraph, build_product_graph
+from spidermatch.quality import assess
 from spidermatch.remesh import Decimated, decimate
 from spidermatch.solve.highs import SolveResult, SolverOptions
 from spidermatch.solve.strategies import LAZY_STRATEGIES, solve_with_strategy
@@ -128,6 +129,8 @@ class MatchResult:
         last model HiGHS solved instead).
     dense : DenseMap or None
         Image of every full-resolution source vertex (None if turned off or unsolved).
+    quality : dict or None
+        The verdict on a checked matching without ground truth (:func:`spidermatch.quality.assess`).
 
     """
 
@@ -142,6 +145,7 @@ class MatchResult:
     timings: dict = field(default_factory=dict)
     model_size: dict = field(default_factory=dict)
     dense: DenseMap | None = None
+    quality: dict | None = None
 
     @property
     def dense_map(self) -> np.ndarray | None:
@@ -318,6 +322,10 @@ def match(
     if solved.x is not None:
         with _stage(timings, "check"):
             _read_solution(result, tuple(settings.constraints))
+    if result.low_map is not None:
+        result.quality = assess(low_x.mesh, low_y.mesh, result.low_map, solved.gap)
+        log = logger.warning if result.quality["verdict"] == "suspect" else logger.info
+        log("quality: %s%s", result.quality["verdict"], "".join(f"; {r}" for r in result.quality["reasons"]))
     if settings.dense is not None:
         add_dense_map(result, source, target, (source_features, target_features), settings.dense)
     return result

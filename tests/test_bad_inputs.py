@@ -512,3 +512,37 @@ def test_real_options_and_group_choices_are_not_flagged():
     overrides = ["features=learned", "features.adapt_steps=20", "dense.radius=3", "hydra/launcher=joblib"]
     assert unknown_option_problem("match", [*overrides, "resolution=100", "hydra.run.dir=x"]) is None
     assert unknown_option_problem("eval", ["dataset=d", "n_pairs=3"]) is None
+
+
+# the quality verdict without ground truth
+
+
+def test_quality_verdict_flags_a_mirror_image_and_a_collapse():
+    from spidermatch.quality import assess
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    verts = sphere.vertices * [1.0, 0.8, 0.6]
+    source = Mesh(verts, sphere.faces, "source")
+    mirror = Mesh(verts * [-1.0, 1.0, 1.0], sphere.faces[:, ::-1], "mirror")  # outward, reflected
+    identity = np.arange(source.n_verts)
+    right = assess(source, source, identity, 1e-4)
+    assert right["verdict"] == "plausible" and right["flipped"] == 0 and right["reasons"] == []
+    mirrored = assess(source, mirror, identity, 1e-4)
+    assert (
+        mirrored["verdict"] == "suspect" and mirrored["flipped"] > 0.9 and "mirror" in mirrored["reasons"][0]
+    )
+    collapsed = assess(source, source, np.zeros(source.n_verts, dtype=int), 1e-4)
+    assert collapsed["verdict"] == "suspect" and any("collapses" in r for r in collapsed["reasons"])
+    unproven = assess(source, source, identity, 0.3)
+    assert unproven["verdict"] == "suspect" and "gap" in unproven["reasons"][0]
+
+
+def test_every_run_ends_with_one_summary_line(tmp_path, caplog):
+    import logging
+
+    with caplog.at_level(logging.INFO, logger="spidermatch"):
+        assert run_match(config("match", SMALL), tmp_path / "run") == 0
+    last = [record.getMessage() for record in caplog.records if record.name == "spidermatch.match"][-1]
+    assert last.startswith("result: optimal, gap") and "quality " in last and "mean geodesic error" in last
+    assert last.endswith(f"exit 0; outputs in {tmp_path / 'run'}")
+    assert result_of(tmp_path / "run")["quality"]["verdict"] in ("plausible", "suspect")
