@@ -322,11 +322,19 @@ def check_inputs(cfg, inputs: MatchInputs, report: dict) -> None:
         report.setdefault("warnings", []).extend(warnings)
 
 
+def resolution_text(inputs: MatchInputs) -> str:
+    """'500 faces', or what each mesh is matched at when one has fewer faces than the resolution."""
+    faces = [min(inputs.resolution, mesh.n_faces) for mesh in (inputs.source, inputs.target)]
+    if faces == [inputs.resolution] * 2:
+        return f"{inputs.resolution} faces"
+    return f"{faces[0]} x {faces[1]} faces (resolution={inputs.resolution}; a coarser mesh is matched as it is)"
+
+
 def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -> int:
     inputs = get_inputs()
     report.update(input=inputs.description, resolution=inputs.resolution)
     check_inputs(cfg, inputs, report)
-    logger.info("matching %s at %d faces", inputs.description, inputs.resolution)
+    logger.info("matching %s at %s", inputs.description, resolution_text(inputs))
     start = time.perf_counter()
     feat_x, feat_y, feature_name = get_features(inputs)
     feature_time = time.perf_counter() - start

@@ -546,3 +546,12 @@ def test_every_run_ends_with_one_summary_line(tmp_path, caplog):
     assert last.startswith("result: optimal, gap") and "quality " in last and "mean geodesic error" in last
     assert last.endswith(f"exit 0; outputs in {tmp_path / 'run'}")
     assert result_of(tmp_path / "run")["quality"]["verdict"] in ("plausible", "suspect")
+
+
+def test_training_that_ends_worse_than_wks_says_so():
+    from train.cli import worse_than_wks
+    from train.loop import TrainResult
+
+    assert "worse than WKS (0.0660)" in worse_than_wks(TrainResult(39, [], 0.116, 0.116, wks_error=0.066))
+    assert worse_than_wks(TrainResult(300, [], 0.03, 0.03, wks_error=0.066)) == ""
+    assert worse_than_wks(TrainResult(300, [], 0.5, 0.5, criterion="val_unsup")) == ""

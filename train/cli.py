@@ -29,6 +29,16 @@ def to_train_config(cfg: DictConfig) -> TrainConfig:
     return TrainConfig.from_dict(values)
 
 
+def worse_than_wks(result) -> str:
+    """A warning for the final line when the best network matches worse than untrained WKS ('' if not)."""
+    if result.criterion != "val_error" or not result.wks_error < result.best_val:
+        return ""
+    return (
+        f"; WARNING: worse than WKS ({result.wks_error:.4f}) on the same pairs: matching with this network "
+        "would be worse than without it; train longer (run.n_steps) or with more of the machine"
+    )
+
+
 @hydra.main(config_path="pkg://conf", config_name="train", version_base="1.3")
 def train_main(cfg: DictConfig) -> float:
     """Train DiffusionNet features; writes ``last.pt`` and ``best.pt`` in the run folder.
@@ -54,7 +64,7 @@ def train_main(cfg: DictConfig) -> float:
     figure = "validation error" if result.criterion == "val_error" else "label-free validation loss"
     print(
         f"{status} at step {result.step}: last {figure} {result.last_val:.4f}, "
-        f"best {result.best_val:.4f}; checkpoints in {out_dir}"
+        f"best {result.best_val:.4f}; checkpoints in {out_dir}{worse_than_wks(result)}"
     )
     if result.interrupted and HydraConfig.get().mode != RunMode.MULTIRUN:
         raise SystemExit(result.exit_code)  # a pre-empted job must not look finished

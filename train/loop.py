@@ -93,6 +93,8 @@ class TrainResult:
         The selection figure: ``"val_error"`` (labelled) or ``"val_unsup"`` (label-free).
     stop_signal : int
         The signal that stopped the run (0 if none).
+    wks_error : float
+        The validation error of WKS descriptors on the same pairs (nan without labels).
     """
 
     step: int
@@ -102,6 +104,7 @@ class TrainResult:
     interrupted: bool = False
     criterion: str = "val_error"
     stop_signal: int = 0
+    wks_error: float = math.nan
 
     @property
     def exit_code(self) -> int:
@@ -409,7 +412,8 @@ def run_training(
         save_checkpoint(out_dir / "last.pt", state, config)
         logger.warning("stopped at step %d; continue with resume=%s", state.step, out_dir / "last.pt")
     criterion = validation.criterion if validation is not None else "val_error"
-    return TrainResult(state.step, losses, state.best_val, last_val, bool(stop[0]), criterion, stop[0])
+    wks = validation.wks_error if validation is not None else math.nan
+    return TrainResult(state.step, losses, state.best_val, last_val, bool(stop[0]), criterion, stop[0], wks)
 
 
 def orientation_reference(shape: TrainShape, config: TrainConfig) -> dict[str, Any] | None:
