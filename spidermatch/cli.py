@@ -327,7 +327,9 @@ def resolution_text(inputs: MatchInputs) -> str:
     faces = [min(inputs.resolution, mesh.n_faces) for mesh in (inputs.source, inputs.target)]
     if faces == [inputs.resolution] * 2:
         return f"{inputs.resolution} faces"
-    return f"{faces[0]} x {faces[1]} faces (resolution={inputs.resolution}; a coarser mesh is matched as it is)"
+    return (
+        f"{faces[0]} x {faces[1]} faces (resolution={inputs.resolution}; a coarser mesh is matched as it is)"
+    )
 
 
 def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -> int:
