@@ -59,3 +59,22 @@ def test_known_figures_keep_the_cheapest_incumbent_and_the_largest_bound():
 def test_exits_are_described_in_words():
     assert describe_exit(-6) == "SIGABRT (exit 134)"
     assert describe_exit(1) == "exit code 1"
+
+
+def test_a_solver_process_forked_after_a_solve_in_the_parent_solves_too():
+    """HiGHS keeps a thread pool per calling thread: the child's solves run on a thread of its own.
+
+    (A child forked from a process whose forking thread had run HiGHS could wait for workers it
+    does not have.)
+    """
+    from functools import partial
+
+    from spidermatch.solve.highs import solve_model
+    from spidermatch.solve.strategies import solve_with_strategy
+    from tests.test_ilp import creature_instance
+
+    curve, graph, model = creature_instance(24, seed=3)
+    in_parent = solve_model(model, SolverOptions(time_limit=60.0))
+    in_child = solve_isolated(partial(solve_with_strategy, "plain"), model, graph, curve, SolverOptions(60.0))
+    assert in_parent.status == in_child.status == "optimal"
+    assert in_child.objective == pytest.approx(in_parent.objective, rel=1e-9)
