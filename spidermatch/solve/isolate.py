@@ -192,7 +192,7 @@ def _failure(exitcode: int | None, known: dict, model, wall: float) -> SolveResu
     incumbent = math.inf if incumbent is None else incumbent
     bound = -math.inf if bound is None else bound
     message = (
-        f"the solver process died ({describe_exit(exitcode)}); incumbent and bound as last reported "
+        f"the solver process died: {describe_exit(exitcode)}; incumbent and bound as last reported "
         "(see docs/solver_failures.md)"
     )
     logger.error("%s", message)
