@@ -103,6 +103,7 @@ def settings_from_config(cfg, resolution: int, feature_name: str) -> MatchSettin
             log=bool(solver.log),
         ),
         strategy=strategy_for(str(solver.strategy), feature_name),
+        isolate_solver=bool(solver.get("isolate", True)),
         dense=dense_settings(cfg),
     )
 

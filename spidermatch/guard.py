@@ -150,6 +150,11 @@ def stop_requested() -> bool:
     return _STATE.signum is not None
 
 
+def received_signal() -> int | None:
+    """The number of the first SIGINT/SIGTERM received, or None (call :func:`stop_requested` first)."""
+    return _STATE.signum
+
+
 def raise_if_stopped(known: dict | None = None) -> None:
     """Raise :class:`RunInterrupted` (once) if a signal asked the run to stop."""
     if _STATE.signum is not None and not _STATE.raised and not _STATE.held:
@@ -230,6 +235,23 @@ def signals_handled():
             signal.signal(sig, handler)
         os.close(read_end)
         os.close(write_end)
+
+
+def fresh_in_child() -> None:
+    """In a forked child inside :func:`signals_handled`: a wake-up pipe and signal state of its own.
+
+    The child inherits the parent's pipe; reading it would take signals meant for the parent
+    (and the parent's for the child). The handlers stay installed, so a signal stops the
+    child's solve as it would the parent's.
+    """
+    if not _STATE.installed:
+        return
+    read_end, write_end = os.pipe()
+    os.set_blocking(read_end, False)
+    os.set_blocking(write_end, False)
+    signal.set_wakeup_fd(write_end, warn_on_full_buffer=False)
+    _STATE.signum, _STATE.raised, _STATE.wakeup = None, False, read_end
+    _STATE.native, _STATE.abandoned = 0, False
 
 
 def _file_mode() -> int:

@@ -12,6 +12,7 @@ import math
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -36,6 +37,7 @@ from spidermatch.product_graph import ProductGraph, build_product_graph
 from spidermatch.quality import assess
 from spidermatch.remesh import Decimated, decimate
 from spidermatch.solve.highs import SolveResult, SolverOptions
+from spidermatch.solve.isolate import solve_isolated
 from spidermatch.solve.strategies import LAZY_STRATEGIES, solve_with_strategy
 from spidermatch.validate import check_settings
 
@@ -87,6 +89,9 @@ class MatchSettings:
     solver : SolverOptions
     strategy : str
         Solving strategy name (see :mod:`spidermatch.solve.strategies`).
+    isolate_solver : bool
+        Solve in a child process (:mod:`spidermatch.solve.isolate`): if HiGHS crashes, the
+        result has status "error" with the incumbent objective and bound known before.
     dense : DenseSettings or None
         How to extend the certified map to every full-resolution source vertex
         (:mod:`spidermatch.dense`); None: no dense map.
@@ -103,6 +108,7 @@ class MatchSettings:
     constraints: tuple = FAMILIES
     solver: SolverOptions = field(default_factory=SolverOptions)
     strategy: str = "rcfix"
+    isolate_solver: bool = True
     dense: DenseSettings | None = field(default_factory=DenseSettings)
 
 
@@ -306,9 +312,12 @@ def match(
         source, target, source_features, target_features, settings, timings
     )
     with _stage(timings, "solve"):
-        solved = within_optimal_gap(
-            solve_with_strategy(settings.strategy, model, graph, curve, settings.solver)
-        )
+        solve = partial(solve_with_strategy, settings.strategy)
+        if settings.isolate_solver:
+            solved = solve_isolated(solve, model, graph, curve, settings.solver)
+        else:
+            solved = solve(model, graph, curve, settings.solver)
+        solved = within_optimal_gap(solved)
     logger.info(
         "solver: %s, objective %.6g, bound %.6g, gap %.2e",
         solved.status,

@@ -75,8 +75,9 @@ def solver_problems(solver, strategies) -> list[str]:
         problems.append(
             f"solver.strategy={_show(solver.get('strategy'))}: choose from {', '.join(strategies)}"
         )
-    if not isinstance(solver.get("log"), bool):
-        problems.append(f"solver.log={_show(solver.get('log'))}: must be true or false")
+    for flag in ("log", "isolate"):
+        if not isinstance(solver.get(flag, False), bool):
+            problems.append(f"solver.{flag}={_show(solver.get(flag))}: must be true or false")
     return problems
 
 
@@ -204,6 +205,7 @@ def check_settings(settings) -> None:
         "presolve": solver.presolve,
         "strategy": settings.strategy,
         "log": solver.log,
+        "isolate": settings.isolate_solver,
     }
     problems = [resolution_problem(settings.resolution)]
     problems += solver_problems(solver_values, sorted({*STRATEGIES, *LAZY_STRATEGIES}))

@@ -249,3 +249,37 @@ def test_first_threshold_is_fixed_up_to_1000_faces_and_grows_with_the_curve_beyo
     assert first_threshold(2.0, FIRST_STEP_LAYERS) == pytest.approx(2 * FIRST_STEP)
     assert first_threshold(2.0, 2 * FIRST_STEP_LAYERS) == pytest.approx(4 * FIRST_STEP)
     assert first_threshold(2.0, 4 * FIRST_STEP_LAYERS) == pytest.approx(4 * FIRST_STEP)  # capped at twice
+
+
+def test_a_signal_during_a_restricted_mip_reports_a_bound_for_the_full_model(monkeypatch):
+    """The restricted MIP's own bound may exceed the full model's optimum; the reported one may not."""
+    import signal
+
+    import spidermatch.solve.colgen as colgen
+    from spidermatch.guard import RunInterrupted
+
+    lazy = creature_lazy(24, 3)
+    plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
+
+    def interrupted(lazy, columns, options, incumbent, *rest):
+        start = float(lazy.costs(np.flatnonzero(incumbent > 0.5)).sum())
+        raise RunInterrupted(signal.SIGTERM, {"incumbent_objective": start, "bound": 1e9})
+
+    monkeypatch.setattr(colgen, "_restricted_mip", interrupted)
+    monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)
+    with pytest.raises(RunInterrupted) as stop:
+        solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, EXACT)
+    known = stop.value.known
+    assert known["bound"] <= plain.objective * (1 + 1e-9)
+    assert known["gap"] == pytest.approx(
+        (known["incumbent_objective"] - known["bound"]) / abs(known["incumbent_objective"])
+    )
+
+
+def test_full_model_figures_of_an_interrupted_mip_take_the_lp_bound_without_a_mip_bound():
+    from spidermatch.solve.colgen import interrupted_full_model_figures
+
+    assert interrupted_full_model_figures({"bound": None}, 10.0, 12.0) == {"bound": 10.0, "gap": None}
+    figures = interrupted_full_model_figures({"bound": 15.0, "incumbent_objective": 20.0}, 10.0, 12.0)
+    assert figures == {"bound": 12.0, "gap": pytest.approx(0.4)}
+    assert interrupted_full_model_figures({"bound": 5.0}, 10.0, 12.0)["bound"] == 10.0

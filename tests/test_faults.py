@@ -533,3 +533,27 @@ def test_corrupted_files_through_the_command_line(tmp_path):
         )
         assert run.returncode == 2, (name, run.stderr[-2000:])
         assert str(path) in run.stdout + run.stderr and "Traceback" not in run.stderr, name
+
+
+# 9. a native crash of the solver (issue 28): result.json 'solver_failure', exit 5, the figures known
+
+
+def test_09_a_native_crash_of_the_solver_ends_in_solver_failure_with_what_was_known(tmp_path, monkeypatch):
+    from spidermatch import pipeline
+    from spidermatch.solve.progress import report_known
+
+    def crashing(name, model, graph, curve, options):
+        report_known(incumbent=12.5, bound=10.0)
+        report_known(incumbent=13.0, bound=11.0)  # a dearer incumbent changes nothing
+        os.abort()  # as free(): invalid pointer does in HiGHS
+
+    monkeypatch.setattr(pipeline, "solve_with_strategy", crashing)
+    folder = tmp_path / "run"
+    code = run_match(config("match", [*SMALL, f"hydra.run.dir={folder}"]), folder)
+    assert code == 5
+    result = result_of(folder)
+    assert result["status"] == "solver_failure" and result["proven_optimal"] is False
+    assert result["objective"] == 12.5 and result["bound"] == 11.0
+    assert result["gap"] == pytest.approx(1.5 / 12.5)
+    assert "SIGABRT" in result["error"]
+    assert not (folder / "matches.csv").exists()

@@ -69,6 +69,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from spidermatch.curve import SpiderCurve
+from spidermatch.guard import RunInterrupted
 from spidermatch.ilp import IlpModel
 from spidermatch.lazy_model import LazyModel
 from spidermatch.product_graph import INTRA, ProductGraph
@@ -77,6 +78,7 @@ from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
 from spidermatch.solve.path_costs import path_reduced_costs
 from spidermatch.solve.path_seed import cheapest_closed_path, path_plausible
+from spidermatch.solve.progress import report_known
 from spidermatch.solve.strategies import (
     LP_EXTRA,
     CutPool,
@@ -468,6 +470,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     if incumbent is None:  # the stay path satisfies every row and cut: a run that times out still has it
         incumbent = np.zeros(lazy.n_vars)
         incumbent[stay] = 1.0
+    report_known(objective_of(lazy, incumbent), lp.bound)
     base = np.union1d(lp.support(), stay)
     threshold, best = first_threshold(lp.bound, lazy.graph.n_layers), None
     priced = by_path(lazy, lp.pricing)
@@ -481,7 +484,13 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         built.append(columns)
         outside = lp.bound + max(selection.min_outside, 0.0)
         stop_when = useless_beyond(outside, lp.bound + JUMP * threshold, options.mip_rel_gap)
-        result = _restricted_mip(lazy, columns, remaining(options, start), incumbent, pool, layers, stop_when)
+        try:
+            result = _restricted_mip(
+                lazy, columns, remaining(options, start), incumbent, pool, layers, stop_when
+            )
+        except RunInterrupted as stop:  # its figures hold for the restricted MIP only
+            stop.known.update(interrupted_full_model_figures(stop.known, lp.bound, outside))
+            raise
         if result.x is None:
             break  # time limit before a solution of this step: keep the last one
         incumbent = result.x
@@ -490,6 +499,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         proven_here = result.status == "optimal" and outside >= result.bound  # the MIP's proof covers all
         certified = proven_here or relative_gap(result.objective, bound) <= options.mip_rel_gap
         best = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
+        report_known(result.objective, bound)
         logger.info(
             "colgen step %d: threshold %.3g, objective %.8g, bound for the full model %.8g",
             step, threshold, result.objective, bound,
@@ -510,6 +520,20 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     if best is None:
         return replace(result, bound=lp.bound, gap=math.nan)
     return replace(best, status="feasible", message=f"not certified within {MAX_STEPS} steps")
+
+
+def interrupted_full_model_figures(known: dict, lp_bound: float, outside: float) -> dict:
+    """Bound and gap for the full model when a signal stopped a restricted MIP.
+
+    The MIP's bound B_C (``known["bound"]``) holds for solutions over its columns only; as in
+    :func:`certify_by_steps`, ``max(L(y), min(B_C, O))`` holds for the full model, with ``O`` =
+    ``outside``, the bound on every solution using a column left out.
+    """
+    restricted = known.get("bound")
+    bound = lp_bound if restricted is None else max(lp_bound, min(restricted, outside))
+    incumbent = known.get("incumbent_objective")
+    gap = relative_gap(incumbent, bound) if incumbent is not None else math.nan
+    return {"bound": float(bound), "gap": gap if math.isfinite(gap) else None}
 
 
 def too_little_time_for_a_step(options: SolverOptions, seconds_left: float) -> bool:

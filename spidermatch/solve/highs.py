@@ -19,10 +19,13 @@ import scipy.sparse as sp
 
 from spidermatch import guard
 from spidermatch.ilp import IlpModel
-from spidermatch.solve.progress import ProgressLog
+from spidermatch.solve.progress import ProgressLog, report_known
 
 logger = logging.getLogger(__name__)
 
+# HiGHS 1.16's root reduced-cost heuristic aborted the process (free(): invalid pointer) in
+# the presolve of its sub-MIP: docs/solver_failures.md, bench/repro/highs_submip_presolve_abort.py
+HIGHS_WORKAROUNDS = {"mip_heuristic_run_root_reduced_cost": False}
 KEEP_IMPROVING = 16  # improving solutions a session keeps (a full-model vector is 30 MB at 1000 faces)
 _PROCESS_THREADS: int | None = None  # HiGHS fixes its thread pool at the first solve of a process
 _STATUS = highspy.HighsModelStatus
@@ -179,7 +182,10 @@ def _configure(highs, options: SolverOptions) -> None:
         )
     if _PROCESS_THREADS:
         set_option(highs, "threads", _PROCESS_THREADS)
-    for name, value in options.extra.items():
+    for name, value in HIGHS_WORKAROUNDS.items():
+        if highs.setOptionValue(name, value) == highspy.HighsStatus.kError:  # not in this HiGHS version
+            logger.debug("HiGHS has no option %s: workaround not needed", name)
+    for name, value in options.extra.items():  # may undo a workaround
         set_option(highs, name, value)
 
 
@@ -206,6 +212,27 @@ def _pass_model(highs, model: IlpModel, integer: bool) -> None:
     )
     if status == highspy.HighsStatus.kError:
         raise RuntimeError(f"HiGHS rejected the model ({n} columns, {m} rows)")
+
+
+def highs_time_limit(highs, seconds: float, relax: bool) -> float:
+    """The ``time_limit`` option that gives the next ``highs.run()`` ``seconds`` more.
+
+    HiGHS (1.16, and the HiGHS sources since at least 1.7) compares an LP's ``time_limit``
+    with its run clock, ``getRunTime()``, which keeps counting over every run of a ``Highs``
+    object: an LP re-solved after 12 s of earlier runs and given 1 s stopped at once. A MIP
+    is timed by a clock of its own that starts with each run (HiGHS's MIP solver gives its
+    own LP solver ``getRunTime() + left`` the same way). See ``bench/repro/highs_run_clock.py``.
+
+    Parameters
+    ----------
+    highs : highspy.Highs
+    seconds : float
+        Time the next run may take.
+    relax : bool
+        True for an LP (the model has no integer columns).
+
+    """
+    return seconds + highs.getRunTime() if relax else seconds
 
 
 class HighsSession:
@@ -292,6 +319,7 @@ class HighsSession:
             if self.usable is not None and objective < min(self.best_usable, self.best_unusable):
                 if self.usable(x):
                     self.best_usable = objective
+                    report_known(incumbent=objective)  # one closed path: an incumbent of the full model
                 else:
                     self.best_unusable = objective
 
@@ -384,50 +412,20 @@ class HighsSession:
         """Solve (again) and read the result.
 
         ``options.time_limit`` bounds all runs of the session together (from its creation):
-        HiGHS applies its own ``time_limit`` to each ``run()`` afresh, so every run is
-        given only what is left.
+        every run is given what is left, through :func:`highs_time_limit` (HiGHS's clocks
+        differ between LPs and MIPs).
         """
         start, deadline = time.perf_counter(), None
         if math.isfinite(self.options.time_limit):
             left = max(self.options.time_limit - (start - self.started), 0.0)
-            set_option(self.highs, "time_limit", left)
+            set_option(self.highs, "time_limit", highs_time_limit(self.highs, left, self.relax))
             deadline = start + left + OVERRUN_GRACE_S
         self.cancel.clear()
         self.stopped_early = False
-        finished = run_interruptibly(self.highs, self._figures_so_far, self.cancel, deadline)
-        if not finished:
-            return self._abandoned_result(time.perf_counter() - start)
+        run_interruptibly(self.highs, self._figures_so_far, self.cancel, deadline)
         result = _read_result(self, time.perf_counter() - start)
         guard.raise_if_stopped(interrupted_figures(result))
         return result
-
-    def _abandoned_result(self, wall: float) -> SolveResult:
-        """The result of a run that overran its time limit and was left running.
-
-        Its solution is the cheapest of the start solution and the improving ones HiGHS
-        reported (``None`` if there is none); its bound, HiGHS's last reported one.
-        """
-        known = [*self.improving, *([self.offered] if self.offered is not None else [])]
-        objective, x = min(known, key=lambda pair: pair[0]) if known else (math.inf, None)
-        _, dual = self.last_mip
-        bound = -math.inf if self.relax else certified_mip_bound(dual, objective, self.options.mip_rel_gap)
-        message = (
-            f"HiGHS overran its time limit by more than {OVERRUN_GRACE_S:.0f} s and was left running; "
-            "solution and bound as last reported"
-        )
-        logger.warning("%s", message)
-        return SolveResult(
-            "feasible" if x is not None else "no_solution",
-            None if x is None else np.rint(np.clip(x, 0.0, 1.0)),
-            objective,
-            bound,
-            relative_gap(objective, bound),
-            wall,
-            self.n_vars,
-            self.n_rows,
-            self.nnz,
-            message,
-        )
 
 
 class _SolverThread:
@@ -451,10 +449,6 @@ class _SolverThread:
         self.jobs.put((job, done))
         return done
 
-    def abandon(self) -> None:
-        """Leave the running job to its thread; later jobs go to a new thread and queue."""
-        self.jobs, self.thread = queue.Queue(), None
-
     @staticmethod
     def _work(jobs: queue.Queue) -> None:
         while True:
@@ -466,11 +460,22 @@ class _SolverThread:
 
 
 _SOLVER_THREAD = _SolverThread()
+
+
+def fresh_in_child() -> None:
+    """In a forked child: a solver thread of its own (the parent's is not in the child).
+
+    HiGHS's thread pool is per calling thread, so the child's first solve starts a new one.
+    """
+    global _SOLVER_THREAD
+    _SOLVER_THREAD = _SolverThread()
+
+
 STOP_GRACE_S = 1.0  # after a signal, how long to wait for HiGHS to reach an interrupt check
-OVERRUN_GRACE_S = 5.0  # how far HiGHS may run past its time limit before it is left running
+OVERRUN_GRACE_S = 5.0  # how far HiGHS may run past its time limit before it is interrupted (callbacks)
 
 
-def run_interruptibly(highs, figures_so_far, cancel: threading.Event, deadline: float | None = None) -> bool:
+def run_interruptibly(highs, figures_so_far, cancel: threading.Event, deadline: float | None = None) -> None:
     """``highs.run()`` on the solver thread, stopped by SIGINT/SIGTERM or at ``deadline``.
 
     On a signal HiGHS's interrupt callbacks stop the solve at its next check. HiGHS does
@@ -480,9 +485,10 @@ def run_interruptibly(highs, figures_so_far, cancel: threading.Event, deadline: 
 
     HiGHS's own time limit is not checked in those phases either (a 65 s MIP at 1000 faces
     ran 164 s). Past ``deadline`` (``time.perf_counter()`` seconds) ``cancel`` is set, which
-    the callbacks turn into an interrupt; if HiGHS has not stopped within ``STOP_GRACE_S``
-    more, it is left running on its thread (later solves get a new one) and this returns
-    False. True when ``highs.run()`` finished.
+    the callbacks turn into HiGHS's own interrupt (``user_interrupt``), and the run is waited
+    for: a run is never left running while the process goes on (a solver thread left behind
+    could use memory that Python or HiGHS has meanwhile freed or reused, and ran concurrently
+    with the next solve). Returns when ``highs.run()`` has finished.
     """
     failure: list[BaseException] = []
 
@@ -499,17 +505,17 @@ def run_interruptibly(highs, figures_so_far, cancel: threading.Event, deadline: 
                 if guard.stop_requested() and not done.wait(STOP_GRACE_S):
                     guard.abandon_native_work()
                     guard.raise_if_stopped(figures_so_far())
-                if deadline is not None and time.perf_counter() > deadline:
+                if deadline is not None and time.perf_counter() > deadline and not cancel.is_set():
+                    logger.warning(
+                        "HiGHS is %.0f s past its time limit: interrupting it at its next check",
+                        OVERRUN_GRACE_S,
+                    )
                     cancel.set()
-                    if not done.wait(STOP_GRACE_S):  # a daemon thread: it never holds up the exit
-                        _SOLVER_THREAD.abandon()
-                        return False
         except BaseException:  # e.g. KeyboardInterrupt without spidermatch's handler: stop HiGHS too
             cancel.set()
             raise
     if failure:
         raise failure[0]
-    return True
 
 
 def interrupted_figures(result: SolveResult) -> dict:

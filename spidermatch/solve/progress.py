@@ -79,3 +79,27 @@ class ProgressLog:
         logger.info(
             "%s: %d simplex iterations, %.0f s", self.label, int(data_out.simplex_iteration_count), elapsed
         )
+
+
+_KNOWN_SINK = None  # (incumbent, bound) -> None; set in a solver process (spidermatch.solve.isolate)
+
+
+def set_known_sink(sink) -> None:
+    """Send the figures of :func:`report_known` to ``sink(incumbent, bound)`` (None: nowhere)."""
+    global _KNOWN_SINK
+    _KNOWN_SINK = sink
+
+
+def report_known(incumbent: float | None = None, bound: float | None = None) -> None:
+    """Record what a run already knows, in case the solver dies before it returns.
+
+    Parameters
+    ----------
+    incumbent : float, optional
+        Objective of a solution of the full model that passes as a result (one closed path).
+    bound : float, optional
+        A lower bound certified for the full model.
+
+    """
+    if _KNOWN_SINK is not None:
+        _KNOWN_SINK(incumbent, bound)

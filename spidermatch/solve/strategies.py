@@ -41,6 +41,7 @@ from spidermatch.solve.connectivity import (
 from spidermatch.solve.fixing import DualBound, dual_bound
 from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
 from spidermatch.solve.layer_flow import SessionFlows
+from spidermatch.solve.progress import report_known
 from spidermatch.solve.repair import REPAIR_TIME_S, REPAIR_TIME_SHARE, repair_detached
 
 logger = logging.getLogger(__name__)
@@ -437,6 +438,7 @@ def solve_reduced_cost_fixing(
             "infeasible", None, math.inf, math.inf, math.nan, time.perf_counter() - start,
             model.n_vars, model.n_rows, model.nnz, "LP relaxation infeasible",
         )  # fmt: skip
+    report_known(bound=lp.dual.bound)
     pool = CutPool(first_layer=curve.first_layer)
     intersection_layers = np.flatnonzero(curve.is_intersection_layer)
     columns = seed_columns(lp, 1.0)
@@ -477,6 +479,7 @@ def solve_reduced_cost_fixing(
         certified = result.status == "optimal" and gap == options.mip_rel_gap and outside >= result.bound
         bound = min(result.bound, outside)
         result = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
+        report_known(result.objective, bound)
         logger.info(
             "rcfix phase %d: objective %.6g, bound for the full model %.6g", phase, result.objective, bound
         )
