@@ -52,6 +52,7 @@ from spidermatch.mesh import Mesh
 from spidermatch.remesh import Decimated
 from spidermatch.surface import (
     closest_triangle_points,
+    face_table,
     nearest_corner,
     surface_positions,
     vertex_points,
@@ -62,6 +63,18 @@ logger = logging.getLogger(__name__)
 CANDIDATE_CELLS = 2_000_000
 """Point-face pairs searched at once when image points are located among their patches' faces
 (bounds the memory whatever the ratio of full to low resolution; about 300 MB)."""
+
+GATHER_FACTOR = 40
+"""Target vertices per candidate above which similarities are gathered rather than multiplied out."""
+
+GATHERED_VALUES = 1 << 25
+"""Feature values gathered at once (128 MB in single precision)."""
+
+PRUNE_WIDTH = 600
+"""Candidate faces per point above which image points are located among the faces near them only."""
+
+NEAR_VERTICES = 32
+"""Nearest target vertices whose faces are searched when the patches are wider than PRUNE_WIDTH."""
 
 METHODS = ("interp", "interp_features", "zoomout", "zoomout_local", "zoomout_accept")
 
@@ -298,16 +311,56 @@ def interpolated_points(
     target_face, target_bary = project_onto_coarse(target, low_y, clip=False, labels=target_labels)
     projected = surface_positions(low_y.mesh, target_face, target_bary)
     table = faces_by_label(target, target_labels, low_y.mesh.n_verts)
-    face, bary = np.empty(len(images), dtype=np.int64), np.empty((len(images), 3))
+    if images.shape[1] * table.shape[1] <= PRUNE_WIDTH:
+        face, bary = _closest_in_patches(projected, target.faces, blended, table, images)
+    else:
+        face, bary = _closest_near_in_patches(projected, target, target_labels, blended, table, images)
+    local_edge = mean_incident_edge_length(low_y.mesh)[images].mean(axis=1)
+    return face, bary, local_edge
+
+
+def _closest_in_patches(projected, faces, points, table, images) -> tuple[np.ndarray, np.ndarray]:
+    """Closest face to each point (N, 3) among all faces of its images' patches, a block of rows at a time."""
+    face, bary = np.empty(len(points), dtype=np.int64), np.empty((len(points), 3))
     rows = max(1, CANDIDATE_CELLS // (images.shape[1] * table.shape[1]))  # a block's (rows, C) table
-    for start in range(0, len(images), rows):
+    for start in range(0, len(points), rows):
         block = slice(start, start + rows)
         patches = table[images[block]].reshape(len(images[block]), -1)
         face[block], bary[block] = closest_triangle_points(
-            projected, target.faces, blended[block], candidates=patches
+            projected, faces, points[block], candidates=patches
         )
-    local_edge = mean_incident_edge_length(low_y.mesh)[images].mean(axis=1)
-    return face, bary, local_edge
+    return face, bary
+
+
+def _closest_near_in_patches(
+    projected, target, labels, points, table, images
+) -> tuple[np.ndarray, np.ndarray]:
+    """Closest face among the patches' faces around the point's nearest allowed vertices (large patches).
+
+    A target much finer than its low-resolution mesh has patches of thousands of faces;
+    the closest one lies around the patch vertices nearest to the point, so only the
+    faces of the :data:`NEAR_VERTICES` nearest (projected) target vertices that belong to
+    one of the three patches are searched. A point with none of those falls back on its
+    whole patches.
+    """
+    tree, around = cKDTree(projected), face_table(target.faces, target.n_verts)
+    face, bary = np.empty(len(points), dtype=np.int64), np.empty((len(points), 3))
+    rows = max(1, CANDIDATE_CELLS // (NEAR_VERTICES * around.shape[1]))
+    for start in range(0, len(points), rows):
+        block = np.arange(start, min(start + rows, len(points)))
+        near = tree.query(points[block], k=min(NEAR_VERTICES, len(projected)))[1].reshape(len(block), -1)
+        allowed = (labels[near][:, :, None] == images[block][:, None, :]).any(axis=2)
+        candidates = np.where(allowed[:, :, None], around[near], -1).reshape(len(block), -1)
+        found = (candidates >= 0).any(axis=1)
+        hit, miss = block[found], block[~found]
+        face[hit], bary[hit] = closest_triangle_points(
+            projected, target.faces, points[hit], candidates=candidates[found]
+        )
+        if miss.size:
+            face[miss], bary[miss] = _closest_in_patches(
+                projected, target.faces, points[miss], table, images[miss]
+            )
+    return face, bary
 
 
 def mean_incident_edge_length(mesh: Mesh) -> np.ndarray:
@@ -319,8 +372,12 @@ def mean_incident_edge_length(mesh: Mesh) -> np.ndarray:
     return total / np.maximum(count, 1)
 
 
-def local_candidates(target: Mesh, points: np.ndarray, radius: np.ndarray, k: int):
+def local_candidates(
+    target: Mesh, points: np.ndarray, radius: np.ndarray, k: int, tree: cKDTree | None = None
+):
     """Nearest ``k`` target vertices of each point and which lie within ``radius``.
+
+    ``tree``: a KD-tree of ``target.verts``, if the caller has one.
 
     Returns
     -------
@@ -331,7 +388,7 @@ def local_candidates(target: Mesh, points: np.ndarray, radius: np.ndarray, k: in
 
     """
     k = min(k, target.n_verts)
-    distance, index = cKDTree(target.verts).query(points, k=k)
+    distance, index = (tree or cKDTree(target.verts)).query(points, k=k)
     distance, index = distance.reshape(len(points), k), index.reshape(len(points), k)
     inside = distance <= np.asarray(radius)[:, None]
     inside[:, 0] = True
@@ -357,18 +414,28 @@ def feature_refined_vertices(
     np.ndarray, shape (V_X,), int64
 
     """
-    index, distance, inside = local_candidates(target, points, radius, settings.n_neighbours)
-    similarity = candidate_similarities(source_unit, target_unit, index)
-    cost = 1.0 - similarity + settings.distance_weight * (distance / radius[:, None]) ** 2
-    cost[~inside] = np.inf
-    return index[np.arange(len(points)), np.argmin(cost, axis=1)].astype(np.int64)
+    out = np.empty(len(points), dtype=np.int64)
+    tree = cKDTree(target.verts)
+    rows = max(1, CANDIDATE_CELLS // max(settings.n_neighbours, 1))  # bounds the (rows, k) tables
+    for start in range(0, len(points), rows):
+        block = slice(start, start + rows)
+        index, distance, inside = local_candidates(
+            target, points[block], radius[block], settings.n_neighbours, tree
+        )
+        similarity = candidate_similarities(source_unit[block], target_unit, index)
+        cost = 1.0 - similarity + settings.distance_weight * (distance / radius[block, None]) ** 2
+        cost[~inside] = np.inf
+        out[block] = index[np.arange(len(index)), np.argmin(cost, axis=1)]
+    return out
 
 
 def candidate_similarities(source_unit: np.ndarray, target_unit: np.ndarray, index: np.ndarray) -> np.ndarray:
     """Cosine similarity of each source row (N, D) with its candidate target rows ``index`` (N, K).
 
-    Computed a block of source rows at a time against all targets in single precision
-    (a (block, V_Y) product), instead of gathering an (N, K, D) array.
+    Computed in single precision a block of source rows at a time: against all targets (a
+    (block, V_Y) product, fastest while V_Y is small) or, on a target with more than
+    :data:`GATHER_FACTOR` K vertices, against the gathered candidate rows only (a (block, K, D)
+    array), whose cost does not grow with V_Y.
 
     Returns
     -------
@@ -379,9 +446,15 @@ def candidate_similarities(source_unit: np.ndarray, target_unit: np.ndarray, ind
 
     targets = np.ascontiguousarray(target_unit, dtype=np.float32)
     out = np.empty(index.shape, dtype=np.float32)
-    for start in range(0, len(index), BLOCK):
-        block = np.asarray(source_unit[start : start + BLOCK], dtype=np.float32) @ targets.T
-        out[start : start + BLOCK] = np.take_along_axis(block, index[start : start + BLOCK], axis=1)
+    gather = len(targets) > GATHER_FACTOR * index.shape[1]
+    rows = max(1, GATHERED_VALUES // (index.shape[1] * targets.shape[1])) if gather else BLOCK
+    for start in range(0, len(index), rows):
+        sources = np.asarray(source_unit[start : start + rows], dtype=np.float32)
+        if gather:
+            out[start : start + rows] = np.einsum("nd,nkd->nk", sources, targets[index[start : start + rows]])
+        else:
+            products = sources @ targets.T
+            out[start : start + rows] = np.take_along_axis(products, index[start : start + rows], axis=1)
     return out
 
 

@@ -94,3 +94,22 @@ def test_zoomout_keeps_the_identity_of_a_shape_onto_itself():
     assert (
         np.mean(zoomout(ops.evecs, ops.mass, ops.evecs, start, range(5, 31, 5), candidates) == start) > 0.99
     )
+
+
+def test_pruned_patch_search_and_gathered_similarities_agree_with_the_full_ones(monkeypatch):
+    import spidermatch.dense as dense
+    from spidermatch.remesh import decimate
+
+    source, target = make_creature(3000, seed=1).mesh.centred(), make_creature(3000, seed=2).mesh.centred()
+    low_x, low_y = decimate(source, 80), decimate(target, 80)
+    low_map = np.arange(low_x.mesh.n_verts) % low_y.mesh.n_verts
+    face, bary, _ = dense.interpolated_points(source, target, low_x, low_y, low_map)
+    monkeypatch.setattr(dense, "PRUNE_WIDTH", 0)  # every point takes the pruned search
+    pruned_face, pruned_bary, _ = dense.interpolated_points(source, target, low_x, low_y, low_map)
+    assert np.mean(pruned_face == face) > 0.99
+    rng = np.random.default_rng(0)
+    fx, fy = rng.normal(size=(50, 16)), rng.normal(size=(target.n_verts, 16))
+    index = rng.integers(target.n_verts, size=(50, 8))
+    multiplied = dense.candidate_similarities(fx, fy, index)
+    monkeypatch.setattr(dense, "GATHER_FACTOR", 0)
+    np.testing.assert_allclose(dense.candidate_similarities(fx, fy, index), multiplied, rtol=1e-5, atol=1e-5)
