@@ -41,6 +41,50 @@ class MatchPictures:
     status: str
 
 
+DISPLAY_FACES = 100_000
+"""Faces a mesh may have in the pictures and the viewer; a larger one is decimated for display."""
+
+
+def for_display(
+    pictures: MatchPictures, errors: tuple[np.ndarray, np.ndarray] | None = None
+) -> tuple[MatchPictures, tuple[np.ndarray, np.ndarray] | None]:
+    """``pictures`` (and ``errors``) on meshes of at most :data:`DISPLAY_FACES` faces.
+
+    A larger mesh is decimated for display only; the map is carried over through the display
+    vertices' nearest full-resolution vertices, so the pictures and the viewer cost the same
+    whatever the input's size (the outputs' files keep every vertex).
+    """
+    import dataclasses
+
+    from scipy.spatial import cKDTree
+
+    from spidermatch.remesh import decimate
+
+    if max(pictures.source.n_faces, pictures.target.n_faces) <= DISPLAY_FACES:
+        return pictures, errors
+    shown = [decimate(mesh, min(mesh.n_faces, DISPLAY_FACES)) for mesh in (pictures.source, pictures.target)]
+    on_source, on_target = (cKDTree(low.mesh.verts) for low in shown)
+    matches = np.asarray(pictures.matches)
+    if matches.ndim == 1:  # a dense map: every display source vertex through its full vertex
+        image = pictures.target.verts[matches[shown[0].to_full]]
+        matches = np.asarray(on_target.query(image)[1], dtype=np.int64)
+    else:
+        matches = np.stack(
+            [
+                on_source.query(pictures.source.verts[matches[:, 0]])[1],
+                on_target.query(pictures.target.verts[matches[:, 1]])[1],
+            ],
+            axis=1,
+        )
+    if errors is not None:
+        errors = (np.asarray(on_source.query(pictures.source.verts[errors[0]])[1]), errors[1])
+    small = dataclasses.replace(pictures, source=shown[0].mesh, target=shown[1].mesh, matches=matches)
+    logger.info(
+        "pictures drawn on meshes decimated to %d and %d faces", shown[0].mesh.n_faces, shown[1].mesh.n_faces
+    )
+    return small, errors
+
+
 def status_line(report: dict) -> str:
     """``optimal, gap 0.0e+00 | 1000 faces, wks features`` from a run's ``result.json`` figures."""
     gap = report.get("gap")
@@ -99,7 +143,7 @@ def write_match_pictures(
     from spidermatch.plot import save_correspondence_png, save_curve_png, save_error_png
 
     output_dir = Path(output_dir)
-    p = pictures
+    p, errors = for_display(pictures, errors)
     jobs = [
         ("correspondence.png", save_correspondence_png, (p.source, p.target, p.matches), (p.title, p.status)),
         ("spider_curve.png", save_curve_png, (p.low_source, p.curve_vertices), ("", p.status)),

@@ -555,3 +555,27 @@ def test_training_that_ends_worse_than_wks_says_so():
     assert "worse than WKS (0.0660)" in worse_than_wks(TrainResult(39, [], 0.116, 0.116, wks_error=0.066))
     assert worse_than_wks(TrainResult(300, [], 0.03, 0.03, wks_error=0.066)) == ""
     assert worse_than_wks(TrainResult(300, [], 0.5, 0.5, criterion="val_unsup")) == ""
+
+
+def test_pictures_of_large_meshes_are_drawn_on_display_meshes(tmp_path, monkeypatch):
+    import spidermatch.figures as figures
+
+    monkeypatch.setattr(figures, "DISPLAY_FACES", 400)
+    source, target = creature(0, 900), creature(1, 900)
+    dense = np.arange(source.n_verts) % target.n_verts
+    pictures = figures.MatchPictures(source, target, source, np.arange(10), dense, "a -> b", "optimal")
+    errors = (np.arange(0, source.n_verts, 7), np.full(len(range(0, source.n_verts, 7)), 0.1))
+    small, small_errors = figures.for_display(pictures, errors)
+    assert small.source.n_faces <= 400 and small.target.n_faces <= 400
+    assert small.matches.shape == (small.source.n_verts,) and small.matches.max() < small.target.n_verts
+    assert small_errors[0].max() < small.source.n_verts and len(small_errors[0]) == len(errors[0])
+    sparse = dataclasses_replace(pictures, matches=np.stack([np.arange(50), np.arange(50)], 1))
+    assert figures.for_display(sparse)[0].matches.max() < 400
+    written = figures.write_match_pictures(tmp_path, pictures, errors)
+    assert {path.name for path in written} >= {"correspondence.png", "viewer.html", "error.png"}
+
+
+def dataclasses_replace(instance, **changes):
+    import dataclasses
+
+    return dataclasses.replace(instance, **changes)
