@@ -47,17 +47,10 @@ from bench_scaling import write_rows  # noqa: E402
 from spidermatch.io import load_mesh, save_mesh  # noqa: E402
 from spidermatch.mesh import Mesh  # noqa: E402
 from spidermatch.operators import vertex_normals  # noqa: E402
+from spidermatch.synthetic import random_rotation  # noqa: E402
 
 VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
 KINDS = ("clean", "scaled", "sub80k", "sub320k")
-
-
-def random_rotation(rng) -> np.ndarray:
-    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
-    q = q * np.sign(np.diag(r))
-    if np.linalg.det(q) < 0:
-        q[:, 0] = -q[:, 0]
-    return q
 
 
 def scan_copy(mesh: Mesh, times: int, rng) -> Mesh:

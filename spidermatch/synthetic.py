@@ -65,6 +65,15 @@ LIMBS = (
 )
 
 
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """A uniformly random proper rotation matrix (3, 3) (determinant +1)."""
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    if np.linalg.det(q) < 0:
+        q[:, 0] = -q[:, 0]
+    return q
+
+
 def fibonacci_sphere(n: int) -> np.ndarray:
     """``n`` nearly uniform points on the unit sphere, shape (n, 3)."""
     index = np.arange(n) + 0.5

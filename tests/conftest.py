@@ -35,11 +35,21 @@ def icosphere(subdivisions: int = 3, radius: float = 1.0) -> Mesh:
 
 
 def random_rotation(rng) -> np.ndarray:
-    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
-    q = q * np.sign(np.diag(r))
-    if np.linalg.det(q) < 0:
-        q[:, 0] = -q[:, 0]
-    return q
+    from spidermatch.synthetic import random_rotation as rotation
+
+    return rotation(rng)
+
+
+TINY_TRAINING = [
+    "data.synthetic_shapes=4",
+    "data.synthetic_verts=300",
+    "data.val_points=30",
+    "model.width=8",
+    "model.n_blocks=1",
+    "model.out_channels=16",
+    "loss.n_fmap=12",
+]
+"""Overrides of a training run that takes seconds (synthetic shapes, a tiny network)."""
 
 
 @pytest.fixture(scope="session")
@@ -49,13 +59,7 @@ def tiny_checkpoint(tmp_path_factory):
     from train.loop import train
 
     overrides = [
-        "data.synthetic_shapes=4",
-        "data.synthetic_verts=300",
-        "data.val_points=30",
-        "model.width=8",
-        "model.n_blocks=1",
-        "model.out_channels=16",
-        "loss.n_fmap=12",
+        *TINY_TRAINING,
         "run.n_steps=2",
         "run.val_every=2",
         "run.progress=false",

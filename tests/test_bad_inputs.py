@@ -287,13 +287,10 @@ def test_interrupted_training_exit_codes():
 
 def test_sigterm_stops_training_with_exit_143(tmp_path):
     folder = tmp_path / "train"
+    from tests.conftest import TINY_TRAINING
+
     overrides = [
-        "data.synthetic_shapes=4",
-        "data.synthetic_verts=300",
-        "data.val_points=30",
-        "model.width=8",
-        "model.n_blocks=1",
-        "loss.n_fmap=12",
+        *TINY_TRAINING,
         "run.n_steps=100000",
         "run.progress=false",
         "run.log_every=1",
