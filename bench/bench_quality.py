@@ -1,8 +1,9 @@
 """Calibration of the quality verdict (spidermatch/quality.py) against ground truth.
 
-Runs ``spidermatch-eval`` on seeded random ordered pairs of each collection, then reads every
-pair's ``result.json``: the verdict and its figures (computed without ground truth) beside
-the mean geodesic error (with it). A matching is *bad* when its dense map's mean error
+Runs ``spidermatch-eval`` on seeded random ordered pairs of each collection (resuming finished
+pairs), then reads every pair's ``result.json``: the verdict's figures (computed without ground
+truth, judged again with the current thresholds of ``spidermatch.quality.judge``) beside the
+mean geodesic error (with it). A matching is *bad* when its dense map's mean error
 exceeds ``--bad-error`` (0.1 of sqrt(area): a mirrored or misplaced body part; correct maps
 on FAUST_r are near 0.03). Prints and writes the confusion table of "suspect" against "bad"
 per collection and overall, and the same table for other thresholds of the mirror figure.
@@ -35,6 +36,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_scaling import write_rows  # noqa: E402
+
+sys.path.insert(0, str(ROOT))
+from spidermatch.quality import judge  # noqa: E402
 
 
 def pair_list(data: Path, n_pairs: int, within: str, seed: int) -> list[tuple[str, str]]:
@@ -80,6 +84,7 @@ def read_pair(path: Path) -> dict | None:
         "pair": path.parent.name,
         "status": report.get("status"),
         "verdict": quality["verdict"],
+        "mirror": quality.get("mirror", quality["flipped"] / max(1.0 - quality["degenerate"], 1e-12)),
         "flipped": quality["flipped"],
         "degenerate": quality["degenerate"],
         "distinct": quality["distinct"],
@@ -131,15 +136,25 @@ def main() -> None:
         found = run_collection(spec, work, args.seed, args.time_limit)
         print(f"{spec}: {len(found)} pairs with a matching", flush=True)
         rows += found
+    for row in rows:  # judged by the current thresholds from the stored figures
+        row.update(judge(row), reasons="; ".join(judge(row)["reasons"]))
     tables = {
         name: confusion([r for r in rows if r["collection"] == name], args.bad_error)
         for name in dict.fromkeys(row["collection"] for row in rows)
     }
     tables["all"] = confusion(rows, args.bad_error)
     sweep = {
-        f"flipped>{threshold}": confusion(rows, args.bad_error, lambda row, t=threshold: row["flipped"] > t)
-        for threshold in (0.2, 0.25, 0.3, 0.35, 0.4, 0.5)
+        f"mirror>{threshold}": confusion(rows, args.bad_error, lambda row, t=threshold: row["mirror"] > t)
+        for threshold in (0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5)
     }
+    sweep.update(
+        {
+            f"distinct<{threshold}": confusion(
+                rows, args.bad_error, lambda row, t=threshold: row["distinct"] < t
+            )
+            for threshold in (0.4, 0.5, 0.6)
+        }
+    )
     print(json.dumps({"confusion": tables, "mirror_threshold_sweep": sweep}, indent=2))
     write_rows(
         Path(args.out).with_suffix(".json"), rows, {"confusion": tables, "mirror_threshold_sweep": sweep}
