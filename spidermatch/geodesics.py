@@ -58,10 +58,17 @@ class GeodesicDistances:
     def between(self, sources: np.ndarray, targets: np.ndarray, progress: bool = False) -> np.ndarray:
         """Distance between ``sources[i]`` and ``targets[i]`` for each i, shape (N,).
 
-        One distance field is solved per distinct source vertex.
+        One distance field is solved per distinct source vertex, and only the entries asked
+        for are kept: memory O(N + V), not one (V,) field per source (3570 sources on a
+        320 000-vertex mesh held 9 GB).
         """
         sources = np.asarray(sources, dtype=np.int64).reshape(-1)
         targets = np.asarray(targets, dtype=np.int64).reshape(-1)
-        unique_sources, inverse = np.unique(sources, return_inverse=True)
-        fields = self.from_vertices(unique_sources, progress=progress)
-        return fields[inverse, targets]
+        order = np.argsort(sources, kind="stable")
+        starts = np.flatnonzero(np.r_[True, sources[order][1:] != sources[order][:-1]])
+        groups = np.split(order, starts[1:])
+        out = np.empty(sources.size)
+        quiet = not progress or len(groups) < 200
+        for group in tqdm(groups, desc="geodesics", disable=quiet, leave=False):
+            out[group] = self.from_vertex(sources[group[0]])[targets[group]]
+        return out
