@@ -100,6 +100,7 @@ def folder_lock(folder: Path):
         raise OutputError(
             f"{folder}: the run folder cannot be created ({error.strerror or error})"
         ) from error
+    _STATE.lock_handle = handle
     try:
         if fcntl is not None:
             try:
@@ -117,7 +118,15 @@ def folder_lock(folder: Path):
             handle.flush()
         yield
     finally:
+        _STATE.lock_handle = None
         handle.close()
+
+
+def release_folder_lock() -> None:
+    """Close this process's copy of the run folder's lock descriptor (in a forked child)."""
+    if _STATE.lock_handle is not None:
+        _STATE.lock_handle.close()
+        _STATE.lock_handle = None
 
 
 class _State:
@@ -128,6 +137,7 @@ class _State:
     wakeup: int | None = None  # read end of the pipe that Python's C-level handler writes to
     abandoned: bool = False  # a HiGHS solve was left running on its thread after a signal
     held: int = 0  # > 0 while final files are written (signals_held)
+    lock_handle = None  # the open lock file of folder_lock, closed in forked children
 
 
 _STATE = _State()
@@ -238,12 +248,18 @@ def signals_handled():
 
 
 def fresh_in_child() -> None:
-    """In a forked child inside :func:`signals_handled`: a wake-up pipe and signal state of its own.
+    """In a forked child: no share in the run folder's lock, and a wake-up pipe of its own.
+
+    Inside :func:`signals_handled` the child also gets signal state of its own.
+
+    A child that kept its copy of the lock's descriptor would hold the folder after its
+    parent died (a killed run could not be resumed while the orphaned solve went on).
 
     The child inherits the parent's pipe; reading it would take signals meant for the parent
     (and the parent's for the child). The handlers stay installed, so a signal stops the
     child's solve as it would the parent's.
     """
+    release_folder_lock()
     if not _STATE.installed:
         return
     read_end, write_end = os.pipe()

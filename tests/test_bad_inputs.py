@@ -576,3 +576,27 @@ def dataclasses_replace(instance, **changes):
     import dataclasses
 
     return dataclasses.replace(instance, **changes)
+
+
+def test_a_forked_solver_process_does_not_hold_the_run_folder(tmp_path):
+    import multiprocessing
+
+    folder = tmp_path / "run"
+    context = multiprocessing.get_context("fork")
+    ready = context.Event()
+    with guard.folder_lock(folder):
+        child = context.Process(target=_live_child, args=(ready,))
+        child.start()
+        assert ready.wait(60)
+    try:
+        with guard.folder_lock(folder):  # free once the parent let go, though the child lives on
+            assert child.is_alive()
+    finally:
+        child.kill()
+        child.join()
+
+
+def _live_child(ready) -> None:
+    guard.fresh_in_child()
+    ready.set()
+    time.sleep(120)

@@ -36,6 +36,8 @@ from spidermatch.solve import highs as highs_module
 from spidermatch.solve.highs import SolveResult, SolverOptions, relative_gap
 from spidermatch.solve.progress import set_known_sink
 
+PR_SET_PDEATHSIG = 1  # prctl(2): the signal a process gets when its parent dies
+
 logger = logging.getLogger(__name__)
 
 POLL_S = 0.05  # how often the parent looks at the pipe, the child and the signals
@@ -110,6 +112,7 @@ def solve_isolated(solve, model, graph, curve, options: SolverOptions) -> SolveR
 
 def _child_main(sender, solve, model, graph, curve, options) -> None:
     """The solver process: run ``solve`` and send its outcome (multiprocessing then calls ``os._exit``)."""
+    _die_with_parent()
     guard.fresh_in_child()
     highs_module.fresh_in_child()
     lock, known = threading.Lock(), KnownFigures()
@@ -134,6 +137,24 @@ def _child_main(sender, solve, model, graph, curve, options) -> None:
     finally:
         set_known_sink(None)
         sender.close()
+
+
+def _die_with_parent() -> None:
+    """Ask the kernel to kill this process when its parent dies (Linux; elsewhere a no-op).
+
+    A parent killed with SIGKILL cannot stop its solver process; without this the orphan
+    would go on solving, using a core, for a result nobody reads.
+    """
+    parent = os.getppid()
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # the parent died before the request took effect
+        os._exit(1)
 
 
 def _watch(child, receiver, model, start: float) -> SolveResult:
