@@ -600,3 +600,37 @@ def _live_child(ready) -> None:
     guard.fresh_in_child()
     ready.set()
     time.sleep(120)
+
+
+class FakeLoadavg:
+    def read_text(self):
+        return "0.10 0.10 0.10 1/80 12345\n"  # this process alone is running
+
+
+def test_pytorch_gets_only_the_free_cores(monkeypatch):
+    from spidermatch import cli
+
+    class FakeTorch:
+        threads = 2
+
+        def get_num_threads(self):
+            return self.threads
+
+        def set_num_threads(self, n):
+            self.threads = n
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.setattr(cli.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(cli.os, "getloadavg", lambda: (1.6, 1.0, 1.0))
+    torch = FakeTorch()
+    cli.use_free_cores(torch)
+    assert torch.threads == 1  # one core is kept busy by another process
+    monkeypatch.setattr(cli.os, "getloadavg", lambda: (0.1, 0.1, 0.1))
+    monkeypatch.setattr(cli, "Path", lambda name: FakeLoadavg())
+    torch = FakeTorch()
+    cli.use_free_cores(torch)
+    assert torch.threads == 2
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    monkeypatch.setattr(cli.os, "getloadavg", lambda: (5.0, 5.0, 5.0))
+    cli.use_free_cores(torch)
+    assert torch.threads == 2  # the user's choice stands
