@@ -300,8 +300,9 @@ def test_sigterm_stops_training_with_exit_143(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT), "SPIDERMATCH_CACHE_DIR": str(tmp_path / "cache")}
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     try:
-        losses = folder / "losses.csv"
+        losses, deadline = folder / "losses.csv", time.monotonic() + 300
         while process.poll() is None and not (losses.is_file() and len(losses.read_text().splitlines()) > 2):
+            assert time.monotonic() < deadline, "training logged no step within 300 s"
             time.sleep(0.2)  # until training has logged steps
         process.send_signal(signal.SIGTERM)
         output, _ = process.communicate(timeout=120)
