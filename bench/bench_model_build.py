@@ -4,7 +4,7 @@
 Costs and constraint matrix only (the same for any features: R is random here); the
 decimated meshes and SpiderCurve come from a dataset pair.
 
-    flock /work/heavy.lock nice -n 5 .venv/bin/python bench/bench_model_build.py \
+    .venv/bin/python bench/bench_model_build.py \
         --data ../shared/data/FAUST_r --pairs tr_reg_070:tr_reg_071 --faces 500 1000
 
 Writes bench/results/model_build_faust.{json,csv} (``--out``).

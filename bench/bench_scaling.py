@@ -8,7 +8,7 @@ than ``--full-model-columns`` columns (about 3.7 f^2 columns at f faces).
 
 Example (the five FAUST_r validation pairs, learned features):
 
-    flock /work/heavy.lock nice -n 5 .venv/bin/python bench/bench_scaling.py \
+    .venv/bin/python bench/bench_scaling.py \
         --data ../shared/data/FAUST_r --features learned --checkpoint runs/faust_sup_s0/best.pt \
         --faces 1000 2000 --strategies colgen rcfix --time-limit 600
 
