@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from spidermatch.mesh import Mesh, MeshError, make_mesh
-from spidermatch.validate import OptionError
+from spidermatch.validate import check_settings
 
 logger = logging.getLogger(__name__)
 
@@ -41,10 +41,6 @@ BETTER_FEATURES_HINT = (
     "symmetric flips; for better features train a network (spidermatch-train) and match with "
     "features=learned checkpoint=PATH (Python: features=LearnedExtractor(PATH) from features.learned)"
 )
-
-
-KEYWORD_OPTIONS = ("time_limit", "mip_rel_gap", "strategy")
-"""Solver options :func:`match` takes as keywords (its messages name them so)."""
 
 
 def default_resolution(feature_name: str) -> int:
@@ -273,13 +269,8 @@ def match(
     if name == "wks":
         logger.info("features: WKS. %s", BETTER_FEATURES_HINT)
     run_settings = _settings(settings, name, resolution, time_limit, mip_rel_gap, strategy)
-    try:
-        result = run_pipeline(source_mesh, target_mesh, feat_x, feat_y, run_settings)
-    except OptionError as error:  # name the keywords the caller used, not the config keys
-        message = str(error)
-        for key in KEYWORD_OPTIONS:
-            message = message.replace(f"solver.{key}=", f"{key}=")
-        raise OptionError(message) from None
+    check_settings(run_settings, solver_prefix="")  # messages name the keywords: time_limit=, not solver.
+    result = run_pipeline(source_mesh, target_mesh, feat_x, feat_y, run_settings)
     if strict:
         result.raise_for_status()
     return _matching(result, name, run_settings.resolution, {"features": feature_time, **result.timings})

@@ -164,10 +164,11 @@ def use_free_cores(torch) -> None:
     """
     if os.environ.get("OMP_NUM_THREADS"):
         return
-    threads = min(free_cores(), torch.get_num_threads())
-    if threads < torch.get_num_threads():
+    default = torch.get_num_threads()
+    threads = min(free_cores(), default)
+    if threads < default:
         logger.info(
-            "PyTorch uses %d thread(s): the other cores are busy (load %.1f)", threads, os.getloadavg()[0]
+            "PyTorch uses %d of %d threads: other processes keep the other cores busy", threads, default
         )
         torch.set_num_threads(threads)
 

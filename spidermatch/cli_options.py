@@ -94,9 +94,8 @@ def unknown_option_problem(config_name: str, overrides: list[str]) -> str | None
     names = option_names(cfg)
     for item in overrides:
         key = _key(item)
-        if "=" not in item or key.startswith("hydra") or "/" in key or key in names:
-            continue  # Hydra's own keys and config-group paths are Hydra's to check
-        if item.startswith(("~", "++")):
+        hydras = key.startswith("hydra") or "/" in key  # Hydra's own keys and config-group paths
+        if "=" not in item or hydras or key in names or item.startswith(("~", "++")):
             continue
         close = difflib.get_close_matches(key, names, n=1, cutoff=0.6)
         hint = f" (did you mean {close[0]}?)" if close else ""

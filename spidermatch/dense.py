@@ -38,10 +38,8 @@ full-resolution vertex ``low_x.to_full[i]`` goes to ``low_y.to_full[low_map[i]]`
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
-from numbers import Integral, Real
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -57,6 +55,7 @@ from spidermatch.surface import (
     surface_positions,
     vertex_points,
 )
+from spidermatch.values import is_finite, is_whole
 
 logger = logging.getLogger(__name__)
 
@@ -133,14 +132,6 @@ REAL_SETTINGS = {"radius": "> 0", "distance_weight": ">= 0", "spectral_feature_w
 """Real-number settings of :class:`DenseSettings` and their allowed range."""
 
 
-def _is_whole(value) -> bool:
-    return isinstance(value, Integral) and not isinstance(value, bool)
-
-
-def _is_real(value) -> bool:
-    return isinstance(value, Real) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def settings_problems(values: Mapping) -> list[str]:
     """Why ``values`` (keys of :class:`DenseSettings`) are unusable, one ``key=value: rule`` each.
 
@@ -154,14 +145,14 @@ def settings_problems(values: Mapping) -> list[str]:
         choices = ", ".join(METHODS)
         problems.append(f"method={values['method']!r}: unknown dense method; choose from {choices}")
     for key, least in WHOLE_SETTINGS.items():
-        if key in values and (not _is_whole(values[key]) or values[key] < least):
+        if key in values and (not is_whole(values[key]) or values[key] < least):
             problems.append(f"{key}={values[key]!r}: must be a whole number >= {least}")
     for key, allowed in REAL_SETTINGS.items():
         value = values.get(key, 1.0)
-        if not _is_real(value) or (value <= 0 if allowed == "> 0" else value < 0):
+        if not is_finite(value) or (value <= 0 if allowed == "> 0" else value < 0):
             problems.append(f"{key}={value!r}: must be a finite number {allowed}")
     start, stop = values.get("spectral_start", 1), values.get("spectral_stop", 1)
-    if _is_whole(start) and _is_whole(stop) and start > stop:
+    if is_whole(start) and is_whole(stop) and start > stop:
         problems.append(f"spectral_start={start} > spectral_stop={stop}: the schedule must grow")
     return problems
 

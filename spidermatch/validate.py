@@ -10,9 +10,7 @@ mesh not far below the requested resolution.
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass
-from numbers import Integral, Real
 
 import numpy as np
 import scipy.sparse as sp
@@ -21,6 +19,7 @@ from scipy.sparse.csgraph import connected_components
 from spidermatch.curve import MATCHINGS
 from spidermatch.dense import settings_problems as dense_settings_problems
 from spidermatch.mesh import Mesh, MeshError, face_edges
+from spidermatch.values import is_finite, is_number, is_whole, show
 
 logger = logging.getLogger(__name__)
 
@@ -34,57 +33,49 @@ class OptionError(ValueError):
     """One or more options have unusable values; the message names each option."""
 
 
-def _is_int(value) -> bool:
-    return isinstance(value, Integral) and not isinstance(value, bool)
-
-
-def _is_number(value) -> bool:
-    return isinstance(value, Real) and not isinstance(value, bool) and not math.isnan(value)
-
-
-def _show(value) -> str:
-    return repr(value) if isinstance(value, str) else str(value)
-
-
 def resolution_problem(value, key: str = "resolution") -> str | None:
     """Why ``value`` is not a usable face count (None if it is; None itself means 'the default')."""
     if value is None:
         return None
-    if not _is_int(value) or value < MIN_RESOLUTION:
-        return f"{key}={_show(value)}: must be a whole number of faces >= {MIN_RESOLUTION}"
+    if not is_whole(value) or value < MIN_RESOLUTION:
+        return f"{key}={show(value)}: must be a whole number of faces >= {MIN_RESOLUTION}"
     return None
 
 
-def solver_problems(solver, strategies) -> list[str]:
-    """Problems with the ``solver`` option group (time_limit, mip_rel_gap, threads, presolve, ...)."""
+def solver_problems(solver, strategies, prefix: str = "solver.") -> list[str]:
+    """Problems with the ``solver`` option group (time_limit, mip_rel_gap, threads, presolve, ...).
+
+    ``prefix`` starts every option's name in the messages (the Python API passes "", as its
+    keywords are ``time_limit=``, ``mip_rel_gap=``, ``strategy=``).
+    """
     problems = []
     limit = solver.get("time_limit")
-    if not _is_number(limit) or limit <= 0:
-        problems.append(f"solver.time_limit={_show(limit)}: must be a number of seconds > 0 (or inf)")
+    if not is_number(limit) or limit <= 0:
+        problems.append(f"{prefix}time_limit={show(limit)}: must be a number of seconds > 0 (or inf)")
     gap = solver.get("mip_rel_gap")
-    if not _is_number(gap) or not 0 <= gap < 1:
-        problems.append(f"solver.mip_rel_gap={_show(gap)}: must be a number >= 0 and < 1")
+    if not is_number(gap) or not 0 <= gap < 1:
+        problems.append(f"{prefix}mip_rel_gap={show(gap)}: must be a number >= 0 and < 1")
     threads = solver.get("threads")
-    if not _is_int(threads) or threads < 0:
-        problems.append(f"solver.threads={_show(threads)}: must be a whole number >= 0 (0: HiGHS chooses)")
+    if not is_whole(threads) or threads < 0:
+        problems.append(f"{prefix}threads={show(threads)}: must be a whole number >= 0 (0: HiGHS chooses)")
     if solver.get("presolve") not in PRESOLVE_VALUES:
         problems.append(
-            f"solver.presolve={_show(solver.get('presolve'))}: choose from {', '.join(PRESOLVE_VALUES)}"
+            f"{prefix}presolve={show(solver.get('presolve'))}: choose from {', '.join(PRESOLVE_VALUES)}"
         )
     if solver.get("strategy") not in strategies:
         problems.append(
-            f"solver.strategy={_show(solver.get('strategy'))}: choose from {', '.join(strategies)}"
+            f"{prefix}strategy={show(solver.get('strategy'))}: choose from {', '.join(strategies)}"
         )
     for flag in ("log", "isolate"):
         if not isinstance(solver.get(flag, False), bool):
-            problems.append(f"solver.{flag}={_show(solver.get(flag))}: must be true or false")
+            problems.append(f"{prefix}{flag}={show(solver.get(flag))}: must be true or false")
     return problems
 
 
 def constraints_problem(value, families) -> str | None:
     """Why ``costs.constraints`` is not a usable set of constraint families (None if it is)."""
     if isinstance(value, str) or not hasattr(value, "__iter__"):
-        return f"costs.constraints={_show(value)}: must be a list such as [{', '.join(families)}]"
+        return f"costs.constraints={show(value)}: must be a list such as [{', '.join(families)}]"
     names = list(value)
     if not names:
         return f"costs.constraints=[]: give at least {REQUIRED_FAMILY} (choose from {', '.join(families)})"
@@ -106,23 +97,23 @@ def costs_and_curve_problems(cfg) -> list[str]:
     problems = []
     for key in ("alpha", "scale", "bowl_exponent"):
         value = cfg.costs.get(key)
-        if not _is_number(value) or not math.isfinite(value):
-            problems.append(f"costs.{key}={_show(value)}: must be a finite number")
+        if not is_finite(value):
+            problems.append(f"costs.{key}={show(value)}: must be a finite number")
     scale = cfg.costs.get("scale")
-    if _is_number(scale) and scale <= 0:
-        problems.append(f"costs.scale={_show(scale)}: must be > 0")
+    if is_number(scale) and scale <= 0:
+        problems.append(f"costs.scale={show(scale)}: must be > 0")
     for key, group in (("target_augmented", cfg.costs), ("augmented", cfg.curve)):
         if not isinstance(group.get(key), bool):
             problems.append(f"{'costs' if group is cfg.costs else 'curve'}.{key}: must be true or false")
-    if not _is_int(cfg.curve.get("seed")):
-        problems.append(f"curve.seed={_show(cfg.curve.get('seed'))}: must be a whole number")
+    if not is_whole(cfg.curve.get("seed")):
+        problems.append(f"curve.seed={show(cfg.curve.get('seed'))}: must be a whole number")
     if cfg.curve.get("decimation") not in DECIMATIONS:
         problems.append(
-            f"curve.decimation={_show(cfg.curve.get('decimation'))}: choose from {', '.join(DECIMATIONS)}"
+            f"curve.decimation={show(cfg.curve.get('decimation'))}: choose from {', '.join(DECIMATIONS)}"
         )
     if cfg.curve.get("matching", "greedy") not in MATCHINGS:
         problems.append(
-            f"curve.matching={_show(cfg.curve.get('matching'))}: choose from {', '.join(MATCHINGS)}"
+            f"curve.matching={show(cfg.curve.get('matching'))}: choose from {', '.join(MATCHINGS)}"
         )
     return problems
 
@@ -147,14 +138,14 @@ def dense_and_output_problems(cfg) -> list[str]:
     dense = cfg.get("dense")
     if dense is not None:
         if not isinstance(dense.get("enabled"), bool):
-            problems.append(f"dense.enabled={_show(dense.get('enabled'))}: must be true or false")
+            problems.append(f"dense.enabled={show(dense.get('enabled'))}: must be true or false")
         values = {key: value for key, value in dense.items() if key != "enabled"}
         problems += [f"dense.{problem}" for problem in dense_settings_problems(values)]
     output = cfg.get("output")
     if output is not None:
         for key in OUTPUT_SWITCHES:
             if key in output and not isinstance(output.get(key), bool):
-                problems.append(f"output.{key}={_show(output.get(key))}: must be true or false")
+                problems.append(f"output.{key}={show(output.get(key))}: must be true or false")
     return problems
 
 
@@ -169,24 +160,37 @@ def check_options(cfg) -> None:
 
     """
     from spidermatch.ilp import FAMILIES
-    from spidermatch.solve.strategies import AUTO, LAZY_STRATEGIES, STRATEGIES
+    from spidermatch.solve.strategies import AUTO
 
     problems = [resolution_problem(cfg.get("resolution"))]
-    problems += solver_problems(cfg.solver, [AUTO, *sorted({*STRATEGIES, *LAZY_STRATEGIES})])
+    problems += solver_problems(cfg.solver, [AUTO, *strategy_names()])
     problems.append(constraints_problem(cfg.costs.get("constraints"), FAMILIES))
     problems += costs_and_curve_problems(cfg)
     problems += path_problems(cfg) + dense_and_output_problems(cfg)
+    raise_problems(problems)
+
+
+def strategy_names() -> list[str]:
+    """Every solving strategy's name, sorted (``auto`` apart)."""
+    from spidermatch.solve.strategies import LAZY_STRATEGIES, STRATEGIES
+
+    return sorted({*STRATEGIES, *LAZY_STRATEGIES})
+
+
+def raise_problems(problems: list) -> None:
+    """Raise one :class:`OptionError` listing every problem (None entries are no problem)."""
     problems = [p for p in problems if p]
     if problems:
         raise OptionError("bad option: " + "; ".join(problems))
 
 
-def check_settings(settings) -> None:
+def check_settings(settings, solver_prefix: str = "solver.") -> None:
     """Validate a :class:`~spidermatch.pipeline.MatchSettings` as :func:`check_options` does the config.
 
     The Python API and every other caller of :func:`spidermatch.pipeline.match` get the
     same checks, with the same messages, as the command line (``resolution=150.9``, a text
     ``'150'`` or ``time_limit=nan`` are refused, never truncated or passed on).
+    ``solver_prefix`` starts the solver options' names in the messages (see :func:`solver_problems`).
 
     Raises
     ------
@@ -194,27 +198,21 @@ def check_settings(settings) -> None:
         Listing every problem, each naming its setting.
 
     """
-    from spidermatch.ilp import FAMILIES
-    from spidermatch.solve.strategies import LAZY_STRATEGIES, STRATEGIES
+    import dataclasses
 
-    solver = settings.solver
-    solver_values = {
-        "time_limit": solver.time_limit,
-        "mip_rel_gap": solver.mip_rel_gap,
-        "threads": solver.threads,
-        "presolve": solver.presolve,
+    from spidermatch.ilp import FAMILIES
+
+    solver = {
+        **dataclasses.asdict(settings.solver),
         "strategy": settings.strategy,
-        "log": solver.log,
         "isolate": settings.isolate_solver,
     }
     problems = [resolution_problem(settings.resolution)]
-    problems += solver_problems(solver_values, sorted({*STRATEGIES, *LAZY_STRATEGIES}))
+    problems += solver_problems(solver, strategy_names(), solver_prefix)
     problems.append(constraints_problem(settings.constraints, FAMILIES))
     if settings.decimation not in DECIMATIONS:
-        problems.append(f"decimation={_show(settings.decimation)}: choose from {', '.join(DECIMATIONS)}")
-    problems = [p for p in problems if p]
-    if problems:
-        raise OptionError("bad option: " + "; ".join(problems))
+        problems.append(f"decimation={show(settings.decimation)}: choose from {', '.join(DECIMATIONS)}")
+    raise_problems(problems)
 
 
 @dataclass(frozen=True)
