@@ -52,6 +52,7 @@ from spidermatch.surface import (
     closest_triangle_points,
     face_table,
     nearest_corner,
+    padded_rows,
     surface_positions,
     vertex_points,
 )
@@ -326,32 +327,75 @@ def _closest_in_patches(projected, faces, points, table, images) -> tuple[np.nda
 def _closest_near_in_patches(
     projected, target, labels, points, table, images
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Closest face among the patches' faces around the point's nearest allowed vertices (large patches).
+    """Closest face among the patches' faces around the point's nearest patch vertices (large patches).
 
     A target much finer than its low-resolution mesh has patches of thousands of faces;
-    the closest one lies around the patch vertices nearest to the point, so only the
-    faces of the :data:`NEAR_VERTICES` nearest (projected) target vertices that belong to
-    one of the three patches are searched. A point with none of those falls back on its
-    whole patches.
+    the closest one lies around the patch vertices nearest to the point, so only faces
+    around those are searched: around the :data:`NEAR_VERTICES` nearest (projected) target
+    vertices that belong to one of the three patches, or, for a point with none of those
+    (its images span no low-resolution face, so other patches lie between), around the
+    :data:`NEAR_VERTICES` nearest vertices of each of its own patches.
     """
     tree, around = cKDTree(projected), face_table(target.faces, target.n_verts)
     face, bary = np.empty(len(points), dtype=np.int64), np.empty((len(points), 3))
     rows = max(1, CANDIDATE_CELLS // (NEAR_VERTICES * around.shape[1]))
+    missed = []
     for start in range(0, len(points), rows):
         block = np.arange(start, min(start + rows, len(points)))
         near = tree.query(points[block], k=min(NEAR_VERTICES, len(projected)))[1].reshape(len(block), -1)
         allowed = (labels[near][:, :, None] == images[block][:, None, :]).any(axis=2)
         candidates = np.where(allowed[:, :, None], around[near], -1).reshape(len(block), -1)
         found = (candidates >= 0).any(axis=1)
-        hit, miss = block[found], block[~found]
-        face[hit], bary[hit] = closest_triangle_points(
-            projected, target.faces, points[hit], candidates=candidates[found]
+        face[block[found]], bary[block[found]] = closest_triangle_points(
+            projected, target.faces, points[block[found]], candidates=candidates[found]
         )
-        if miss.size:
-            face[miss], bary[miss] = _closest_in_patches(
-                projected, target.faces, points[miss], table, images[miss]
+        missed.append(block[~found])
+    miss = np.concatenate(missed)
+    near = _nearest_in_own_patches(projected, labels, points[miss], images[miss])
+    for start in range(0, len(miss), rows):
+        rows_near, block = near[start : start + rows], miss[start : start + rows]
+        candidates = np.where(rows_near[:, :, None] >= 0, around[rows_near], -1).reshape(len(block), -1)
+        found = (candidates >= 0).any(axis=1)
+        face[block[found]], bary[block[found]] = closest_triangle_points(
+            projected, target.faces, points[block[found]], candidates=candidates[found]
+        )
+        if not found.all():  # patches without a full-resolution vertex: their faces, whole
+            lost = block[~found]
+            face[lost], bary[lost] = _closest_in_patches(
+                projected, target.faces, points[lost], table, images[lost]
             )
     return face, bary
+
+
+def _nearest_in_own_patches(projected, labels, points, images) -> np.ndarray:
+    """The :data:`NEAR_VERTICES` vertices nearest to each point in each of its patches.
+
+    Parameters
+    ----------
+    projected : np.ndarray, shape (V, 3)
+    labels : np.ndarray, shape (V,)
+        Patch (low-resolution vertex) of every vertex.
+    points : np.ndarray, shape (N, 3)
+    images : np.ndarray, shape (N, 3)
+        The three patches of each point.
+
+    Returns
+    -------
+    np.ndarray, shape (N, 3 * NEAR_VERTICES), int64
+        Vertex indices, -1 where a patch has fewer vertices.
+
+    """
+    members = padded_rows(labels, np.arange(len(labels)), int(labels.max()) + 1)
+    near = np.full((len(points), images.shape[1], NEAR_VERTICES), -1, dtype=np.int64)
+    for patch in np.unique(images):
+        vertices = members[patch][members[patch] >= 0]
+        row, slot = np.nonzero(images == patch)
+        if vertices.size == 0:
+            continue
+        k = min(NEAR_VERTICES, vertices.size)
+        index = cKDTree(projected[vertices]).query(points[row], k=k)[1].reshape(len(row), k)
+        near[row, slot, :k] = vertices[index]
+    return near.reshape(len(points), -1)
 
 
 def mean_incident_edge_length(mesh: Mesh) -> np.ndarray:
