@@ -22,8 +22,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
+from spidermatch.feature_transfer import pair_features as capped_pair_features
 from spidermatch.mesh import Mesh, MeshError, make_mesh
-from spidermatch.validate import check_settings
+from spidermatch.validate import check_settings, feature_cap_problem, raise_problems
 
 logger = logging.getLogger(__name__)
 
@@ -163,7 +165,9 @@ def _from_arrays(verts, faces, name: str) -> Mesh:
     return make_mesh(verts, faces, name)
 
 
-def pair_features(features, source: Mesh, target: Mesh) -> tuple[np.ndarray, np.ndarray, str]:
+def pair_features(
+    features, source: Mesh, target: Mesh, max_vertices: int | None = MAX_FEATURE_VERTICES
+) -> tuple[np.ndarray, np.ndarray, str]:
     """Features of both meshes (centred) and their name, from ``features`` as :func:`match` takes it.
 
     Parameters
@@ -172,6 +176,9 @@ def pair_features(features, source: Mesh, target: Mesh) -> tuple[np.ndarray, np.
         An extractor is any callable ``mesh -> (V, D)``; one with ``pair_features(source,
         target)`` (test-time adaptation) is asked for both at once.
     source, target : Mesh
+    max_vertices : int, optional
+        A mesh with more vertices gets an extractor's features on a decimated copy of about
+        this many, carried to all its vertices (:mod:`spidermatch.feature_transfer`; None: no cap).
 
     Returns
     -------
@@ -190,12 +197,8 @@ def pair_features(features, source: Mesh, target: Mesh) -> tuple[np.ndarray, np.
             f"or a pair of (V, D) arrays, got {type(features).__name__}"
         )
     name = str(getattr(features, "name", type(features).__name__))
-    centred_x, centred_y = source.centred(), target.centred()
-    if hasattr(features, "pair_features"):
-        feat_x, feat_y = features.pair_features(centred_x, centred_y)
-    else:
-        feat_x, feat_y = features(centred_x), features(centred_y)
-    return np.asarray(feat_x), np.asarray(feat_y), name
+    feat_x, feat_y = capped_pair_features(features, source, target, max_vertices)
+    return feat_x, feat_y, name
 
 
 def _extractor_by_name(name: str):
@@ -222,6 +225,7 @@ def match(
     strategy: str | None = None,
     settings=None,
     strict: bool = True,
+    features_max_vertices: int | None = MAX_FEATURE_VERTICES,
 ) -> Matching:
     """Match ``source`` to ``target`` with SpiderMatch and return a certified :class:`Matching`.
 
@@ -248,6 +252,10 @@ def match(
         Raise :class:`~spidermatch.pipeline.MatchError` (``InfeasibleError``,
         ``NoSolutionError``, ``SolverFailure``) when there is no checked matching; with
         False, return the :class:`Matching` with ``matches=None`` instead.
+    features_max_vertices : int, optional
+        A mesh with more vertices gets an extractor's features on a decimated copy of about
+        this many vertices, carried to all of them (None or 0: no cap; precomputed arrays
+        are used as given).
 
     Returns
     -------
@@ -262,9 +270,10 @@ def match(
     """
     from spidermatch.pipeline import match as run_pipeline
 
+    raise_problems([feature_cap_problem(features_max_vertices, "features_max_vertices")])
     source_mesh, target_mesh = as_mesh(source, "source"), as_mesh(target, "target")
     started = time.perf_counter()
-    feat_x, feat_y, name = pair_features(features, source_mesh, target_mesh)
+    feat_x, feat_y, name = pair_features(features, source_mesh, target_mesh, features_max_vertices or None)
     feature_time = time.perf_counter() - started
     if name == "wks":
         logger.info("features: WKS. %s", BETTER_FEATURES_HINT)

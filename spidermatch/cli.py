@@ -26,6 +26,7 @@ from spidermatch.costs import RobustLoss
 from spidermatch.datasets import DatasetError, SyntheticShapes
 from spidermatch.dense import DenseSettings
 from spidermatch.evaluate import sparse_map_errors
+from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, mesh_features, pair_features
 from spidermatch.io import load_mesh, read_vts
 from spidermatch.mesh import Mesh, MeshError
 from spidermatch.pipeline import MatchError, MatchResult, MatchSettings, add_dense_map, match
@@ -179,18 +180,19 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
     name = getattr(extractor, "name", type(extractor).__name__)
     if name == "wks":
         logger.info("features: WKS (no trained checkpoint given). %s", BETTER_FEATURES_HINT)
-    source, target = inputs.source.centred(), inputs.target.centred()
-    if hasattr(extractor, "pair_features"):
-        feat_x, feat_y = extractor.pair_features(source, target)
-    else:
-        feat_x, feat_y = extractor(source), extractor(target)
+    feat_x, feat_y = pair_features(extractor, inputs.source, inputs.target, feature_cap(cfg))
     turns = getattr(extractor, "turns", None)
     if turns:
         logger.info(
             "orientation search: %s",
             ", ".join(f"{key} turned {value:.0f} degrees" for key, value in turns.items()),
         )
-    return np.asarray(feat_x), np.asarray(feat_y), name
+    return feat_x, feat_y, name
+
+
+def feature_cap(cfg) -> int | None:
+    """``features_max_vertices`` of the run (None: no cap)."""
+    return cfg.get("features_max_vertices", MAX_FEATURE_VERTICES) or None
 
 
 write_atomic = guard.write_atomic  # atomic, umask-derived mode; OutputError names the path
@@ -532,19 +534,20 @@ class FeatureMemo:
     def __init__(self, cfg) -> None:
         self.extractor = make_extractor(cfg)
         self.name = getattr(self.extractor, "name", type(self.extractor).__name__)
+        self.max_vertices = feature_cap(cfg)
         self._cache: dict[str, np.ndarray] = {}
 
     def of(self, key: str, mesh: Mesh) -> np.ndarray:
         """Features (V, D) of ``mesh`` (centred), computed on first use of ``key``."""
         if key not in self._cache:
-            self._cache[key] = np.asarray(self.extractor(mesh.centred()))
+            self._cache[key] = mesh_features(self.extractor, mesh, self.max_vertices)
         return self._cache[key]
 
     def pair(self, inputs: MatchInputs, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray, str]:
         """Features of a pair; adaptive extractors (``pair_features``) are never cached."""
         if hasattr(self.extractor, "pair_features"):
-            feat_x, feat_y = self.extractor.pair_features(inputs.source.centred(), inputs.target.centred())
-            return np.asarray(feat_x), np.asarray(feat_y), self.name
+            feat_x, feat_y = pair_features(self.extractor, inputs.source, inputs.target, self.max_vertices)
+            return feat_x, feat_y, self.name
         return self.of(names[0], inputs.source), self.of(names[1], inputs.target), self.name
 
 

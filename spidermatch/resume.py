@@ -15,6 +15,8 @@ import logging
 import os
 from pathlib import Path
 
+from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
+
 logger = logging.getLogger(__name__)
 
 # statuses that are the pair's real outcome (interrupted, output_error, started: run again)
@@ -63,6 +65,9 @@ def deciding_settings(config: dict, checkpoint: str | None) -> dict:
 
     """
     solver = {k: v for k, v in config["solver"].items() if k not in IGNORED_SOLVER_KEYS}
+    cap = config.get("features_max_vertices", MAX_FEATURE_VERTICES)
+    # only a changed cap enters the hash: runs made before the option existed stay reusable
+    changed_cap = {} if cap == MAX_FEATURE_VERTICES else {"features_max_vertices": cap}
     return {
         "dataset": str(config.get("dataset")),
         "synthetic": config.get("synthetic") if config.get("dataset") in (None, "", "synthetic") else None,
@@ -73,6 +78,7 @@ def deciding_settings(config: dict, checkpoint: str | None) -> dict:
         "costs": config["costs"],
         "solver": solver,
         "allow_topology_mismatch": bool(config.get("allow_topology_mismatch", False)),
+        **changed_cap,
     }
 
 

@@ -24,6 +24,7 @@ from spidermatch.values import is_finite, is_number, is_whole, show
 logger = logging.getLogger(__name__)
 
 MIN_RESOLUTION = 4  # a tetrahedron: the coarsest closed triangle mesh
+MIN_FEATURE_VERTICES = 500  # below this the decimated copy loses the eigenpairs features need
 PRESOLVE_VALUES = ("choose", "on", "off")
 DECIMATIONS = ("shortest_edge", "qslim")
 REQUIRED_FAMILY = "CYC"  # every other family constrains the per-layer choice that CYC makes
@@ -40,6 +41,13 @@ def resolution_problem(value, key: str = "resolution") -> str | None:
     if not is_whole(value) or value < MIN_RESOLUTION:
         return f"{key}={show(value)}: must be a whole number of faces >= {MIN_RESOLUTION}"
     return None
+
+
+def feature_cap_problem(value, key: str = "features_max_vertices") -> str | None:
+    """Why ``value`` is not a usable feature vertex cap (None and 0 mean no cap)."""
+    if value is None or (is_whole(value) and (value == 0 or value >= MIN_FEATURE_VERTICES)):
+        return None
+    return f"{key}={show(value)}: must be a whole number of vertices >= {MIN_FEATURE_VERTICES} (0: no cap)"
 
 
 def solver_problems(solver, strategies, prefix: str = "solver.") -> list[str]:
@@ -162,7 +170,10 @@ def check_options(cfg) -> None:
     from spidermatch.ilp import FAMILIES
     from spidermatch.solve.strategies import AUTO
 
-    problems = [resolution_problem(cfg.get("resolution"))]
+    problems = [
+        resolution_problem(cfg.get("resolution")),
+        feature_cap_problem(cfg.get("features_max_vertices")),
+    ]
     problems += solver_problems(cfg.solver, [AUTO, *strategy_names()])
     problems.append(constraints_problem(cfg.costs.get("constraints"), FAMILIES))
     problems += costs_and_curve_problems(cfg)

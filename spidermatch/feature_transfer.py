@@ -1,0 +1,125 @@
+"""Per-vertex features of a pair, computed on at most ``max_vertices`` vertices per mesh.
+
+Spectral descriptors and DiffusionNet need Laplacian eigenpairs; on a raw scan of 300 000
+vertices those alone take minutes and gigabytes, yet the product graph sees a few hundred
+vertices and the dense stage reads features only to rank nearby candidates. A mesh with
+more vertices than the cap is therefore decimated to about the cap, its features are
+computed there, and each full-resolution vertex gets the inverse-distance-weighted mean of
+its nearest decimated vertices' features (rows re-normalised). ``bench/bench_user_copies.py``
+measures what this costs in accuracy.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from spidermatch.costs import unit_rows
+from spidermatch.mesh import Mesh
+from spidermatch.remesh import decimate
+
+logger = logging.getLogger(__name__)
+
+MAX_FEATURE_VERTICES = 20_000
+"""Default cap: larger meshes get their features on a decimated copy (``None``/0: no cap)."""
+
+CARRY_NEIGHBOURS = 4
+"""Decimated vertices whose features are averaged into each full-resolution vertex."""
+
+CARRY_BLOCK = 50_000
+"""Full-resolution vertices carried per block (bounds the (block, k, D) temporary)."""
+
+
+def pair_features(extractor, source: Mesh, target: Mesh, max_vertices: int | None = MAX_FEATURE_VERTICES):
+    """Features of both meshes, centred, each computed on at most ``max_vertices`` vertices.
+
+    Parameters
+    ----------
+    extractor : callable
+        ``mesh -> (V, D)``; one with ``pair_features(source, target)`` (test-time
+        adaptation) is given both meshes at once.
+    source, target : Mesh
+    max_vertices : int, optional
+        The cap (None or 0: every mesh at its own resolution).
+
+    Returns
+    -------
+    source_features : np.ndarray, shape (V_src, D)
+    target_features : np.ndarray, shape (V_tgt, D)
+
+    """
+    centred = [mesh.centred() for mesh in (source, target)]
+    capped = [capped_mesh(mesh, max_vertices) for mesh in centred]
+    work = [mesh if low is None else low for low, mesh in zip(capped, centred)]
+    if hasattr(extractor, "pair_features"):
+        computed = extractor.pair_features(*work)
+    else:
+        computed = (extractor(work[0]), extractor(work[1]))
+    return tuple(
+        np.asarray(features) if low is None else carry_features(np.asarray(features), low, mesh)
+        for features, low, mesh in zip(computed, capped, centred)
+    )
+
+
+def mesh_features(extractor, mesh: Mesh, max_vertices: int | None = MAX_FEATURE_VERTICES) -> np.ndarray:
+    """Features (V, D) of one mesh (centred) through ``extractor``, on at most ``max_vertices``."""
+    centred = mesh.centred()
+    low = capped_mesh(centred, max_vertices)
+    if low is None:
+        return np.asarray(extractor(centred))
+    return carry_features(np.asarray(extractor(low)), low, centred)
+
+
+def capped_mesh(mesh: Mesh, max_vertices: int | None) -> Mesh | None:
+    """``mesh`` decimated to about ``max_vertices`` vertices, or None when it has no more.
+
+    The copy keeps the mesh's name, so that messages and the orientation search's log name
+    the user's file.
+    """
+    if not max_vertices or mesh.n_verts <= max_vertices:
+        return None
+    start = time.perf_counter()
+    low = decimate(mesh, 2 * int(max_vertices)).mesh
+    logger.info(
+        "%s: features computed on %d of its %d vertices (features_max_vertices=%d), then carried to all "
+        "(decimation %.1f s)",
+        mesh.name,
+        low.n_verts,
+        mesh.n_verts,
+        max_vertices,
+        time.perf_counter() - start,
+    )
+    return Mesh(low.verts, low.faces, mesh.name, mesh.notes)
+
+
+def carry_features(low_features: np.ndarray, low: Mesh, full: Mesh) -> np.ndarray:
+    """Features of the decimated mesh carried to every vertex of the full one.
+
+    Parameters
+    ----------
+    low_features : np.ndarray, shape (V_low, D)
+    low : Mesh
+        The decimated copy, in the frame of ``full``.
+    full : Mesh
+
+    Returns
+    -------
+    np.ndarray, shape (V_full, D)
+        Inverse-distance-weighted means of the ``CARRY_NEIGHBOURS`` nearest decimated
+        vertices' rows, each row of unit length (a vertex kept exactly takes its own row).
+
+    """
+    tree = cKDTree(low.verts)
+    k = min(CARRY_NEIGHBOURS, low.n_verts)
+    carried = np.empty((full.n_verts, low_features.shape[1]), dtype=np.float64)
+    for start in range(0, full.n_verts, CARRY_BLOCK):
+        stop = min(start + CARRY_BLOCK, full.n_verts)
+        distance, index = tree.query(full.verts[start:stop], k=k)
+        distance, index = distance.reshape(stop - start, k), index.reshape(stop - start, k)
+        weights = 1.0 / np.maximum(distance, 1e-12 * np.sqrt(full.area))
+        weights /= weights.sum(axis=1, keepdims=True)
+        carried[start:stop] = np.einsum("nk,nkd->nd", weights, low_features[index])
+    return unit_rows(carried)
