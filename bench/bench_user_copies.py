@@ -8,13 +8,20 @@ files and on copies made the way users' files arrive:
 ``sub80k``
     both meshes Loop-subdivided twice (about 80 000 vertices) with scan noise (Gaussian,
     0.1 of the mean edge length, along the normals);
+``sub200k``
+    the ``sub320k`` copy (below) decimated to 200 000 vertices (libigl edge collapses), its
+    ground truth moved to the nearest remaining vertex;
 ``sub320k``
     three times (about 320 000 vertices), with the same noise.
 
 Loop subdivision keeps the original vertices first, so the ``corres/*.vts`` ground truth
-applies to every copy. A row holds the status, gap, objective, the sparse and the dense
-mean geodesic error, the wall time, the peak memory and every stage's time; the summary
-gives each copy's error against the clean pair's.
+applies to the subdivided copies. Each match runs as a user runs it, without ground truth:
+its wall time and peak memory are the user's. The errors are measured afterwards in this
+process (their time apart, ``eval_s``): the sparse map at all its matches, the dense map at
+``--eval-points`` reference points (a fixed sample, the same for every copy of a pair, as
+exact geodesics on a 300 000-vertex target take a second each). A row holds the status,
+gap, objective, both mean geodesic errors, the wall time, the peak memory and every
+stage's time; the summary gives each copy's error against the clean pair's.
 
 Example (the five FAUST_r validation pairs, WKS, the default resolution):
 
@@ -44,13 +51,18 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_scaling import write_rows  # noqa: E402
 
-from spidermatch.io import load_mesh, save_mesh  # noqa: E402
+from spidermatch.evaluate import dense_map_errors, sparse_map_errors  # noqa: E402
+from spidermatch.geodesics import GeodesicDistances  # noqa: E402
+from spidermatch.io import load_mesh, read_vts, save_mesh, write_vts  # noqa: E402
 from spidermatch.mesh import Mesh  # noqa: E402
 from spidermatch.operators import vertex_normals  # noqa: E402
+from spidermatch.remesh import decimate, nearest_vertices  # noqa: E402
 from spidermatch.synthetic import random_rotation  # noqa: E402
 
 VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
-KINDS = ("clean", "scaled", "sub80k", "sub320k")
+KINDS = ("clean", "scaled", "sub80k", "sub200k", "sub320k")
+SUBDIVISIONS = {"sub80k": 2, "sub200k": 3, "sub320k": 3}
+DECIMATED_VERTICES = {"sub200k": 200_000}
 
 
 def scan_copy(mesh: Mesh, times: int, rng) -> Mesh:
@@ -65,35 +77,44 @@ def scan_copy(mesh: Mesh, times: int, rng) -> Mesh:
     return Mesh(verts + noise[:, None] * vertex_normals(verts, faces), faces, mesh.name)
 
 
-def copies(kind: str, source: Path, target: Path, folder: Path, seed: int) -> tuple[Path, Path]:
-    """The pair's files for ``kind`` (made in ``folder`` unless clean)."""
+def copies(kind: str, meshes: list[Path], corr: list[Path], folder: Path, seed: int) -> tuple[list, list]:
+    """The pair's mesh and ground-truth files for ``kind`` (made in ``folder`` unless clean)."""
     if kind == "clean":
-        return source, target
+        return meshes, corr
     rng = np.random.default_rng(seed)
     folder.mkdir(parents=True, exist_ok=True)
     if kind == "scaled":
-        mesh = load_mesh(target)
+        mesh = load_mesh(meshes[1])
         moved = 1000.0 * mesh.verts @ random_rotation(rng).T + rng.uniform(-2000, 2000, size=3)
-        out = folder / f"{target.stem}_mm.off"
+        out = folder / f"{meshes[1].stem}_mm.off"
         save_mesh(Mesh(moved, mesh.faces), out)
-        return source, out
-    times = {"sub80k": 2, "sub320k": 3}[kind]
-    made = []
-    for path in (source, target):
-        out = folder / f"{path.stem}_{kind}.off"
-        if not out.is_file():
-            save_mesh(scan_copy(load_mesh(path), times, rng), out)
-        made.append(out)
-    return made[0], made[1]
+        return [meshes[0], out], corr
+    made_meshes, made_corr = [], []
+    for path, truth in zip(meshes, corr):
+        out, out_corr = folder / f"{path.stem}_{kind}.off", folder / f"{path.stem}_{kind}.vts"
+        if not out.is_file() or not out_corr.is_file():
+            scan = scan_copy(load_mesh(path), SUBDIVISIONS[kind], rng)
+            truth_vertices = read_vts(truth)
+            if kind in DECIMATED_VERTICES:
+                scan, truth_vertices = decimated_copy(scan, truth_vertices, DECIMATED_VERTICES[kind])
+            save_mesh(scan, out)
+            write_vts(truth_vertices, out_corr)
+        made_meshes.append(out)
+        made_corr.append(out_corr)
+    return made_meshes, made_corr
 
 
-def run_match(args, source: Path, target: Path, corr: tuple[Path, Path], run_dir: Path) -> dict:
+def decimated_copy(mesh: Mesh, truth: np.ndarray, vertices: int) -> tuple[Mesh, np.ndarray]:
+    """``mesh`` decimated to about ``vertices`` vertices, and each truth vertex's nearest survivor."""
+    low = decimate(mesh, 2 * vertices).mesh
+    return Mesh(low.verts, low.faces, mesh.name), nearest_vertices(low.verts, mesh.verts[truth])
+
+
+def run_match(args, source: Path, target: Path, run_dir: Path) -> dict:
     command = [
         str(Path(sys.executable).parent / "spidermatch-match"),
         f"source={source}",
         f"target={target}",
-        f"source_corr={corr[0]}",
-        f"target_corr={corr[1]}",
         f"hydra.run.dir={run_dir}",
         "output.png=false",
         *(["features=learned", f"checkpoint={args.checkpoint}"] if args.checkpoint else []),
@@ -118,8 +139,6 @@ def run_match(args, source: Path, target: Path, corr: tuple[Path, Path], run_dir
         "status": report.get("status", "-"),
         "gap": report.get("gap"),
         "objective": report.get("objective"),
-        "sparse_error": (report.get("geodesic_error") or {}).get("mean"),
-        "dense_error": dense.get("geodesic_error"),
         "dense_tears": dense.get("tears"),
         "dense_flips": dense.get("flips"),
         "process_s": round(time.perf_counter() - start, 1),
@@ -127,6 +146,26 @@ def run_match(args, source: Path, target: Path, corr: tuple[Path, Path], run_dir
         **{f"{name}_s": value for name, value in (report.get("timings_s") or {}).items()},
         "error": report.get("error"),
     }
+
+
+def measured_errors(run_dir: Path, meshes: list[Path], corr: list[Path], sample: np.ndarray) -> dict:
+    """Mean geodesic errors of the run's sparse map (all matches) and dense map (``sample`` points)."""
+    start = time.perf_counter()
+    source, target = load_mesh(meshes[0]), load_mesh(meshes[1])
+    src_corr, tgt_corr = read_vts(corr[0], source.n_verts), read_vts(corr[1], target.n_verts)
+    geodesics = GeodesicDistances(target)
+    errors = {"sparse_error": None, "dense_error": None}
+    if (run_dir / "matches.csv").is_file():
+        pairs = np.loadtxt(run_dir / "matches.csv", delimiter=",", skiprows=1, dtype=np.int64, ndmin=2)
+        errors["sparse_error"] = sparse_map_errors(
+            pairs[:, 0], pairs[:, 1], source, src_corr, tgt_corr, target, geodesics
+        ).mean
+    if (run_dir / "dense_map.npz").is_file():
+        vertex = np.load(run_dir / "dense_map.npz")["vertex"]
+        errors["dense_error"] = dense_map_errors(
+            vertex, src_corr[sample], tgt_corr[sample], target, geodesics
+        ).mean
+    return {**errors, "eval_s": round(time.perf_counter() - start, 1)}
 
 
 def summary(rows: list[dict]) -> dict:
@@ -166,6 +205,9 @@ def main() -> None:
         "--work", default=None, help="folder for the copies and runs (default: a new temp folder)"
     )
     parser.add_argument("--override", nargs="*", default=[])
+    parser.add_argument(
+        "--eval-points", type=int, default=500, help="reference points the dense error is measured at"
+    )
     parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "user_copies"))
     args = parser.parse_args()
     data, work = Path(args.data), Path(args.work or tempfile.mkdtemp(prefix="user_copies_"))
@@ -173,11 +215,16 @@ def main() -> None:
     for pair in args.pairs:
         names = pair.split(":")
         meshes = [data / "off" / f"{name}.off" for name in names]
-        corr = tuple(data / "corres" / f"{name}.vts" for name in names)
+        corr = [data / "corres" / f"{name}.vts" for name in names]
+        references = len(read_vts(corr[0]))
+        sample = np.sort(
+            np.random.default_rng(0).choice(references, min(args.eval_points, references), replace=False)
+        )
         for kind in ("clean", *args.kinds):
-            source, target = copies(kind, *meshes, work / "copies", seed=sum(map(ord, pair)))
+            pair_meshes, pair_corr = copies(kind, meshes, corr, work / "copies", seed=sum(map(ord, pair)))
             run_dir = work / "runs" / f"{pair.replace(':', '_')}_{kind}"
-            row = {"pair": pair, "kind": kind, **run_match(args, source, target, corr, run_dir)}
+            row = {"pair": pair, "kind": kind, **run_match(args, *pair_meshes, run_dir)}
+            row.update(measured_errors(run_dir, pair_meshes, pair_corr, sample))
             print(json.dumps(row), flush=True)
             rows.append(row)
     write_rows(Path(args.out).with_suffix(".json"), rows, {"summary": summary(rows)})
