@@ -113,8 +113,8 @@ def turn_about_vertical(reference: ValShape, shape: ValShape, axis: int = 1) -> 
 
 
 def learned_features(
-    path: str, dataset, names: list[str], turns: int = 0
-) -> tuple[list[np.ndarray], dict[str, float]]:
+    path: str, dataset, names: list[str], turns: int = 0, frames: bool = False
+) -> tuple[list[np.ndarray], dict[str, str]]:
     """Descriptors of a checkpoint's network on the named shapes, L2-normalised rows.
 
     With ``turns`` > 1 and an input with coordinates (``wks_xyz``, ``xyz``), every shape is
@@ -122,7 +122,8 @@ def learned_features(
     unsupervised loss (the checkpoint's settings) against the first shape is lowest: the
     orientation search of :mod:`features.orientation`, with the first shape as reference; the
     turns are chosen at the checkpoint's training resolution, as in training and matching.
-    Returns the descriptors and the chosen turns.
+    ``frames`` adds the principal-axis alignments to the candidates, as matching does.
+    Returns the descriptors and the chosen orientations.
     """
     from features.learned import fmap_config_of, training_faces_of
     from features.orientation import OrientationSearch, oriented_outputs, probe_input, searches_orientation
@@ -136,9 +137,9 @@ def learned_features(
     ):  # turns chosen at the training resolution, as in the product
         faces = training_faces_of(checkpoint)
         probes = [probe_input(shape.mesh, model_config, faces) for shape in shapes]
-        search = OrientationSearch(probes[0], turns, fmap_config_of(checkpoint))
+        search = OrientationSearch(probes[0], turns, fmap_config_of(checkpoint), frames)
     found = oriented_outputs(network, [shape.input for shape in shapes], search, probes)
-    chosen = {shape.name: angle for shape, (angle, _) in zip(shapes, found)}
+    chosen = {shape.name: orientation.describe() for shape, (orientation, _) in zip(shapes, found)}
     feats = [normalise_rows(out.double().numpy()) for _, out in found]
     return feats, chosen
 
@@ -155,6 +156,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--orientation-search", type=int, default=0, help="turns to try per shape (coordinate inputs)"
     )
+    parser.add_argument("--frames", action="store_true", help="search principal-axis alignments too")
     parser.add_argument("--leave-out", action="append", default=[], help="a shape name (repeatable)")
     parser.add_argument("--out", default="bench/results/flip_errors.json")
     args = parser.parse_args(argv)
@@ -178,7 +180,9 @@ def main(argv: list[str] | None = None) -> None:
         kinds["wks"] = [extractor(shape.mesh) for shape in shapes]
     chosen_turns = {}
     for label, _, path in labelled:
-        kinds[label], chosen_turns[label] = learned_features(path, dataset, names, args.orientation_search)
+        kinds[label], chosen_turns[label] = learned_features(
+            path, dataset, names, args.orientation_search, args.frames
+        )
     unknown = [name for name in args.leave_out if name not in names]
     if unknown:
         parser.error(f"--leave-out {unknown[0]}: not among --shapes")

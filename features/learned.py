@@ -22,12 +22,13 @@ from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepar
 from features.fmap import FmapLossConfig, fmap_terms
 from features.orientation import (
     COORDINATE_INPUTS,
+    Orientation,
     OrientationSearch,
     oriented_outputs,
     probe_input,
+    rotated_input,
     search_from_payload,
     searches_orientation,
-    turned_input,
 )
 from features.wks import normalise_rows
 from spidermatch.mesh import Mesh, MeshError
@@ -191,6 +192,10 @@ class LearnedExtractor:
         vertical axis and keep the one whose unsupervised loss against the checkpoint's
         reference shape is lowest (:mod:`features.orientation`). None: the checkpoint's
         setting; 0: off.
+    orientation_frames : bool
+        With the search on, also try the 24 alignments of each mesh's principal axes with the
+        reference's, so that a mesh in any rotation (lying down, another up axis) is presented
+        as the network was trained.
 
     """
 
@@ -205,6 +210,7 @@ class LearnedExtractor:
         adapt_faces: int | None = None,
         use_cache: bool = True,
         orientation_turns: int | None = None,
+        orientation_frames: bool = True,
     ) -> None:
         self.checkpoint = str(checkpoint)
         self.network, self.config, stored = load_network(checkpoint)
@@ -224,9 +230,16 @@ class LearnedExtractor:
         self.loss_config = fmap_config_of(stored)
         self.use_cache = use_cache
         self.orientation = orientation_search_of(
-            stored, self.config, self.loss_config, orientation_turns, checkpoint, use_cache
+            stored,
+            self.config,
+            self.loss_config,
+            orientation_turns,
+            checkpoint,
+            use_cache,
+            orientation_frames,
         )
-        self.turns: dict[str, float] = {}
+        self.turns: dict[str, float] = {}  # mesh name -> turn about the vertical (degrees)
+        self.orientations: dict[str, Orientation] = {}  # mesh name -> how its input was presented
 
     def __call__(self, mesh: Mesh) -> np.ndarray:
         """Return descriptors of shape (V, C_out), rows L2-normalised, float64."""
@@ -296,24 +309,22 @@ class LearnedExtractor:
     def _oriented(
         self, network: DiffusionNet, shape: ShapeInput, mesh: Mesh, probe: ShapeInput | None = None
     ) -> tuple[ShapeInput, torch.Tensor]:
-        """``shape`` of ``mesh`` in the turn the orientation search picks, and its output.
+        """``shape`` of ``mesh`` in the orientation the search picks, and its output.
 
-        The turn is chosen on ``probe`` (default: ``mesh`` at the training resolution); without
-        a search, ``shape`` is returned as it is.
+        The orientation is chosen on ``probe`` (default: ``mesh`` at the training resolution);
+        without a search, ``shape`` is returned as it is.
         """
         if self.orientation is not None and probe is None:
             probe = probe_input(mesh, self.config, self.train_faces, self.use_cache)
         probes = None if probe is None else [probe]
-        [(degrees, features)] = oriented_outputs(network, [shape], self.orientation, probes)
+        [(chosen, features)] = oriented_outputs(network, [shape], self.orientation, probes)
         if self.orientation is not None:
-            self.turns[mesh.name] = degrees
-        if degrees:
-            logger.info(
-                "%s: input turned %.0f degrees about the vertical axis (orientation search)",
-                mesh.name,
-                degrees,
-            )
-        return turned_input(shape, degrees), features
+            if chosen.degrees is not None:
+                self.turns[mesh.name] = chosen.degrees
+            self.orientations[mesh.name] = chosen
+        if chosen.degrees != 0.0:
+            logger.info("%s: input %s (orientation search)", mesh.name, chosen.describe())
+        return rotated_input(shape, chosen.rotation), features
 
 
 def orientation_search_of(
@@ -323,6 +334,7 @@ def orientation_search_of(
     turns: int | None,
     path: str | os.PathLike,
     use_cache: bool = True,
+    frames: bool = False,
 ) -> OrientationSearch | None:
     """The orientation search a checkpoint asks for, with ``turns`` overriding its setting."""
     payload = checkpoint.get("orientation")
@@ -340,6 +352,6 @@ def orientation_search_of(
             )
         return None
     try:
-        return search_from_payload(payload, model, loss, turns, use_cache)
+        return search_from_payload(payload, model, loss, turns, use_cache, frames)
     except (KeyError, TypeError, ValueError, AttributeError) as error:
         raise CheckpointError(f"{path}: unreadable orientation reference ({error})") from error

@@ -7,6 +7,11 @@ presents the shape's coordinates in ``turns`` evenly spaced turns about the vert
 axis and keeps the turn whose unsupervised functional-map loss (the training objective)
 against a reference shape in the training orientation is lowest. It reads no labels.
 
+A shape may also arrive lying down or upside down (another up axis, a scanner's frame). With
+``frames`` the search also tries the 24 rotations that carry the shape's principal axes onto
+the reference's (every assignment of axes with every proper choice of signs), so that any
+rotation of the input is covered, and keeps whichever of all candidates scores lowest.
+
 Training stores its reference (the first training shape, at training resolution) in every
 checkpoint (:func:`reference_payload`); validation and :class:`features.learned.LearnedExtractor`
 search against it.
@@ -14,6 +19,7 @@ search against it.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, replace
 from typing import Any
@@ -44,37 +50,119 @@ def turned_input(shape: ShapeInput, degrees: float) -> ShapeInput:
     """``shape`` with its coordinate columns turned by ``degrees`` about the vertical axis."""
     if degrees == 0.0:
         return shape
-    return replace(
-        shape, features=rotated_coordinates(shape.features, turn_about_vertical(math.radians(degrees)))
-    )
+    return rotated_input(shape, turn_about_vertical(math.radians(degrees)))
+
+
+def rotated_input(shape: ShapeInput, rotation: torch.Tensor) -> ShapeInput:
+    """``shape`` with its coordinate columns rotated by ``rotation`` (3, 3)."""
+    return replace(shape, features=rotated_coordinates(shape.features, rotation))
+
+
+def principal_axes(coordinates: torch.Tensor) -> torch.Tensor:
+    """Unit principal axes (3, 3) of points (V, 3) as columns, largest spread first, det +1."""
+    centred = coordinates.double() - coordinates.double().mean(dim=0)
+    _, vectors = torch.linalg.eigh(centred.T @ centred)
+    axes = vectors.flip(1)
+    if torch.linalg.det(axes) < 0:
+        axes[:, 2] = -axes[:, 2]
+    return axes
+
+
+def axis_assignments() -> list[torch.Tensor]:
+    """The 24 proper signed permutation matrices (3, 3): the rotations of a cube."""
+    found = []
+    for order in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            matrix = torch.zeros(3, 3, dtype=torch.float64)
+            matrix[list(order), [0, 1, 2]] = torch.tensor(signs, dtype=torch.float64)
+            if torch.linalg.det(matrix) > 0:
+                found.append(matrix)
+    return found
+
+
+@dataclass(frozen=True)
+class Orientation:
+    """A candidate orientation: the rotation (3, 3) applied to the input coordinates and its name.
+
+    ``degrees`` is the turn about the vertical axis for those candidates, None for the
+    principal-axis alignments.
+    """
+
+    rotation: torch.Tensor
+    degrees: float | None
+
+    def describe(self) -> str:
+        """How the input was presented, for logs."""
+        if self.degrees is not None:
+            return f"turned {self.degrees:.0f} degrees about the vertical axis"
+        angle, axis = rotation_angle_axis(self.rotation)
+        return (
+            f"rotated {angle:.0f} degrees about the axis ({axis[0]:.2f}, {axis[1]:.2f}, {axis[2]:.2f}) "
+            "(its principal axes onto the training reference's)"
+        )
+
+
+def rotation_angle_axis(rotation: torch.Tensor) -> tuple[float, list[float]]:
+    """Angle (degrees) and unit axis of a rotation matrix (3, 3)."""
+    matrix = rotation.double()
+    cos = float(((torch.trace(matrix) - 1) / 2).clamp(-1, 1))
+    angle = math.degrees(math.acos(cos))
+    if angle < 1e-6:
+        return 0.0, [0.0, 1.0, 0.0]
+    if angle > 179.0:  # the axis is the eigenvector of eigenvalue 1
+        values, vectors = torch.linalg.eigh((matrix + matrix.T) / 2)
+        axis = vectors[:, int(torch.argmax(values))]
+    else:
+        axis = torch.stack(
+            [matrix[2, 1] - matrix[1, 2], matrix[0, 2] - matrix[2, 0], matrix[1, 0] - matrix[0, 1]]
+        )
+    axis = axis / axis.norm()
+    return angle, [float(v) for v in axis]
 
 
 @dataclass
 class OrientationSearch:
-    """Choose, per shape, the turn about the vertical axis that the network matches best.
+    """Choose, per shape, the orientation of its coordinates that the network matches best.
 
     Attributes
     ----------
     reference : ShapeInput
         A shape in the orientation the network was trained in.
     turns : int
-        Evenly spaced turns to try (8: every 45 degrees).
+        Evenly spaced turns about the vertical axis to try (8: every 45 degrees).
     loss : FmapLossConfig
-        The unsupervised loss that scores each turn against the reference.
+        The unsupervised loss that scores each candidate against the reference.
+    frames : bool
+        Also try the 24 alignments of the shape's principal axes with the reference's
+        (covers shapes lying down, upside down or in any frame).
     """
 
     reference: ShapeInput
     turns: int
     loss: FmapLossConfig
+    frames: bool = False
 
     def angles(self) -> list[float]:
         """The turns tried, in degrees, starting with 0."""
         return [360.0 * k / self.turns for k in range(self.turns)]
 
+    def candidates(self, shape: ShapeInput) -> list[Orientation]:
+        """Every orientation tried for ``shape``: the vertical turns, then the axis alignments."""
+        found = [
+            Orientation(turn_about_vertical(math.radians(angle)).double(), angle) for angle in self.angles()
+        ]
+        if self.frames:
+            ours, theirs = (
+                principal_axes(shape.features[:, -3:]),
+                principal_axes(self.reference.features[:, -3:]),
+            )
+            found += [Orientation(theirs @ assignment @ ours.T, None) for assignment in axis_assignments()]
+        return found
+
     def search(
         self, network: DiffusionNet, shapes: list[ShapeInput], probes: list[ShapeInput] | None = None
-    ) -> list[tuple[float, torch.Tensor]]:
-        """Best turn (degrees) and the network output (V, C_out) in it, for every shape.
+    ) -> list[tuple[Orientation, torch.Tensor]]:
+        """Best orientation and the network output (V, C_out) in it, for every shape.
 
         Parameters
         ----------
@@ -83,31 +171,34 @@ class OrientationSearch:
         shapes : list of ShapeInput
         probes : list of ShapeInput, optional
             The same shapes at the resolution the network was trained at (see
-            :func:`probe_input`), one per shape: the turns are chosen on them, which is
-            both faster and more reliable than at a finer resolution. None: on ``shapes``.
+            :func:`probe_input`), one per shape: the orientations are chosen on them, which
+            is both faster and more reliable than at a finer resolution. None: on ``shapes``.
         """
         with torch.no_grad():
             reference = network(self.reference.features, self.reference.ops)
             if probes is None:
-                return [self._best_turn(network, reference, shape) for shape in shapes]
+                return [self._best(network, reference, shape) for shape in shapes]
             found = []
             for shape, probe in zip(shapes, probes, strict=True):
-                angle = self._best_turn(network, reference, probe)[0]
-                turned = turned_input(shape, angle)
-                found.append((angle, network(turned.features, turned.ops)))
+                best = self._best(network, reference, probe)[0]
+                presented = rotated_input(shape, best.rotation)
+                found.append((best, network(presented.features, presented.ops)))
             return found
 
-    def _best_turn(
+    def _best(
         self, network: DiffusionNet, reference: torch.Tensor, shape: ShapeInput
-    ) -> tuple[float, torch.Tensor]:
-        best = (math.inf, 0.0, None)
-        for angle in self.angles():
-            out = network(turned_input(shape, angle).features, shape.ops)
+    ) -> tuple[Orientation, torch.Tensor]:
+        best = (math.inf, None, None)
+        for candidate in self.candidates(shape):
+            out = network(rotated_input(shape, candidate.rotation).features, shape.ops)
             terms = fmap_terms(reference, out, self.reference.ops, shape.ops, self.loss)
             loss = terms.weighted(self.loss).item()
             if loss < best[0]:
-                best = (loss, angle, out)
+                best = (loss, candidate, out)
         return best[1], best[2]
+
+
+UNTURNED = Orientation(torch.eye(3, dtype=torch.float64), 0.0)
 
 
 def oriented_outputs(
@@ -115,16 +206,16 @@ def oriented_outputs(
     shapes: list[ShapeInput],
     search: OrientationSearch | None,
     probes: list[ShapeInput] | None = None,
-) -> list[tuple[float, torch.Tensor]]:
-    """Turn (degrees) and network output (V, C_out) of every shape, without gradients.
+) -> list[tuple[Orientation, torch.Tensor]]:
+    """Orientation and network output (V, C_out) of every shape, without gradients.
 
-    With ``search`` the turns are the search's (chosen on ``probes`` when given, see
-    :meth:`OrientationSearch.search`); without it every shape is taken as it is (turn 0).
+    With ``search`` the orientations are the search's (chosen on ``probes`` when given, see
+    :meth:`OrientationSearch.search`); without it every shape is taken as it is.
     """
     if search is not None:
         return search.search(network, shapes, probes)
     with torch.no_grad():
-        return [(0.0, network(shape.features, shape.ops)) for shape in shapes]
+        return [(UNTURNED, network(shape.features, shape.ops)) for shape in shapes]
 
 
 def probe_input(mesh: Mesh, model: ModelConfig, faces: int | None, use_cache: bool = True) -> ShapeInput:
@@ -157,6 +248,7 @@ def search_from_payload(
     loss: FmapLossConfig,
     turns: int | None = None,
     use_cache: bool = True,
+    frames: bool = False,
 ) -> OrientationSearch | None:
     """The search a checkpoint's payload describes (None if it is off for this network).
 
@@ -170,6 +262,8 @@ def search_from_payload(
         Override the stored number of turns (0 or 1: no search).
     use_cache : bool
         Use the on-disk operator cache for the reference shape.
+    frames : bool
+        Also try the principal-axis alignments (:class:`OrientationSearch`).
     """
     turns = int(payload["turns"]) if turns is None else turns
     if not searches_orientation(model, turns):
@@ -177,4 +271,4 @@ def search_from_payload(
     mesh = Mesh(
         payload["verts"].numpy(), payload["faces"].numpy(), name=str(payload.get("name", "reference"))
     )
-    return OrientationSearch(prepare_shape(mesh, model, use_cache=use_cache), turns, loss)
+    return OrientationSearch(prepare_shape(mesh, model, use_cache=use_cache), turns, loss, frames)

@@ -174,20 +174,36 @@ def use_free_cores(torch) -> None:
         torch.set_num_threads(threads)
 
 
-def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, str]:
-    """Per-vertex features of both full-resolution (centred) meshes, and the extractor's name."""
+def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, str, dict]:
+    """Features of both full-resolution (centred) meshes, the extractor's name, and how they were made.
+
+    The last item (for ``result.json``) names the meshes whose features were computed on a
+    capped copy (``computed_on_vertices``) and how an orientation search presented each mesh.
+    """
     extractor = make_extractor(cfg)
     name = getattr(extractor, "name", type(extractor).__name__)
     if name == "wks":
         logger.info("features: WKS (no trained checkpoint given). %s", BETTER_FEATURES_HINT)
-    feat_x, feat_y = pair_features(extractor, inputs.source, inputs.target, feature_cap(cfg))
-    turns = getattr(extractor, "turns", None)
-    if turns:
+    capped = {}
+    feat_x, feat_y = pair_features(extractor, inputs.source, inputs.target, feature_cap(cfg), capped)
+    return feat_x, feat_y, name, feature_details(extractor, capped)
+
+
+def feature_details(extractor, capped: dict) -> dict:
+    """``computed_on_vertices`` and ``orientation`` of a features stage (empty ones left out).
+
+    Logs the orientations and forgets them, so that the next pair reports its own.
+    """
+    details = {"computed_on_vertices": dict(capped)} if capped else {}
+    orientations = getattr(extractor, "orientations", None)
+    if orientations:
+        details["orientation"] = {key: value.describe() for key, value in orientations.items()}
         logger.info(
             "orientation search: %s",
-            ", ".join(f"{key} turned {value:.0f} degrees" for key, value in turns.items()),
+            "; ".join(f"{key} {text}" for key, text in details["orientation"].items()),
         )
-    return feat_x, feat_y, name
+        orientations.clear()
+    return details
 
 
 def feature_cap(cfg) -> int | None:
@@ -254,7 +270,7 @@ def run_pair(cfg, output_dir: Path, get_inputs, get_features, record: dict | Non
         Needs the groups curve, costs, solver and output.
     output_dir : Path
     get_inputs : callable () -> MatchInputs
-    get_features : callable (MatchInputs) -> (features_x (V_X, D), features_y (V_Y, D), name)
+    get_features : callable (MatchInputs) -> (features_x (V_X, D), features_y (V_Y, D), name, details)
     record : dict, optional
         Extra entries for ``result.json`` (e.g. the eval's settings hash).
 
@@ -379,9 +395,11 @@ def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -
     check_inputs(cfg, inputs, report)
     logger.info("matching %s at %s", inputs.description, resolution_text(inputs))
     start = time.perf_counter()
-    feat_x, feat_y, feature_name = get_features(inputs)
+    feat_x, feat_y, feature_name, details = get_features(inputs)
     feature_time = time.perf_counter() - start
     report["features"] = feature_name
+    if details:
+        report["feature_inputs"] = details
     logger.info("features (%s) done in %.2f s", feature_name, feature_time)
     settings = settings_from_config(cfg, inputs.resolution, feature_name)
     logger.info("solving strategy: %s", settings.strategy)
@@ -535,20 +553,31 @@ class FeatureMemo:
         self.extractor = make_extractor(cfg)
         self.name = getattr(self.extractor, "name", type(self.extractor).__name__)
         self.max_vertices = feature_cap(cfg)
-        self._cache: dict[str, np.ndarray] = {}
+        self._cache: dict[str, tuple[np.ndarray, dict]] = {}
 
-    def of(self, key: str, mesh: Mesh) -> np.ndarray:
-        """Features (V, D) of ``mesh`` (centred), computed on first use of ``key``."""
+    def of(self, key: str, mesh: Mesh) -> tuple[np.ndarray, dict]:
+        """Features (V, D) of ``mesh`` (centred), computed on first use of ``key``, and their details."""
         if key not in self._cache:
-            self._cache[key] = mesh_features(self.extractor, mesh, self.max_vertices)
+            capped = {}
+            features = mesh_features(self.extractor, mesh, self.max_vertices, capped)
+            self._cache[key] = (features, feature_details(self.extractor, capped))
         return self._cache[key]
 
-    def pair(self, inputs: MatchInputs, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray, str]:
-        """Features of a pair; adaptive extractors (``pair_features``) are never cached."""
+    def pair(self, inputs: MatchInputs, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray, str, dict]:
+        """Features of a pair and how they were made; adaptive extractors are never cached."""
         if hasattr(self.extractor, "pair_features"):
-            feat_x, feat_y = pair_features(self.extractor, inputs.source, inputs.target, self.max_vertices)
-            return feat_x, feat_y, self.name
-        return self.of(names[0], inputs.source), self.of(names[1], inputs.target), self.name
+            capped = {}
+            features = pair_features(self.extractor, inputs.source, inputs.target, self.max_vertices, capped)
+            return *features, self.name, feature_details(self.extractor, capped)
+        (feat_x, details_x), (feat_y, details_y) = (
+            self.of(names[0], inputs.source),
+            self.of(names[1], inputs.target),
+        )
+        details = {}
+        for part in (details_x, details_y):
+            for kind, entries in part.items():
+                details.setdefault(kind, {}).update(entries)
+        return feat_x, feat_y, self.name, details
 
 
 def _eval_settings_hash(cfg) -> str:

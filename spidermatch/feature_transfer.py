@@ -33,7 +33,13 @@ CARRY_BLOCK = 50_000
 """Full-resolution vertices carried per block (bounds the (block, k, D) temporary)."""
 
 
-def pair_features(extractor, source: Mesh, target: Mesh, max_vertices: int | None = MAX_FEATURE_VERTICES):
+def pair_features(
+    extractor,
+    source: Mesh,
+    target: Mesh,
+    max_vertices: int | None = MAX_FEATURE_VERTICES,
+    record: dict | None = None,
+):
     """Features of both meshes, centred, each computed on at most ``max_vertices`` vertices.
 
     Parameters
@@ -44,6 +50,8 @@ def pair_features(extractor, source: Mesh, target: Mesh, max_vertices: int | Non
     source, target : Mesh
     max_vertices : int, optional
         The cap (None or 0: every mesh at its own resolution).
+    record : dict, optional
+        Receives, for each capped mesh, its name and the copy's vertex count.
 
     Returns
     -------
@@ -52,7 +60,7 @@ def pair_features(extractor, source: Mesh, target: Mesh, max_vertices: int | Non
 
     """
     centred = [mesh.centred() for mesh in (source, target)]
-    capped = [capped_mesh(mesh, max_vertices) for mesh in centred]
+    capped = [capped_mesh(mesh, max_vertices, record) for mesh in centred]
     work = [mesh if low is None else low for low, mesh in zip(capped, centred)]
     if hasattr(extractor, "pair_features"):
         computed = extractor.pair_features(*work)
@@ -64,20 +72,22 @@ def pair_features(extractor, source: Mesh, target: Mesh, max_vertices: int | Non
     )
 
 
-def mesh_features(extractor, mesh: Mesh, max_vertices: int | None = MAX_FEATURE_VERTICES) -> np.ndarray:
+def mesh_features(
+    extractor, mesh: Mesh, max_vertices: int | None = MAX_FEATURE_VERTICES, record: dict | None = None
+) -> np.ndarray:
     """Features (V, D) of one mesh (centred) through ``extractor``, on at most ``max_vertices``."""
     centred = mesh.centred()
-    low = capped_mesh(centred, max_vertices)
+    low = capped_mesh(centred, max_vertices, record)
     if low is None:
         return np.asarray(extractor(centred))
     return carry_features(np.asarray(extractor(low)), low, centred)
 
 
-def capped_mesh(mesh: Mesh, max_vertices: int | None) -> Mesh | None:
+def capped_mesh(mesh: Mesh, max_vertices: int | None, record: dict | None = None) -> Mesh | None:
     """``mesh`` decimated to about ``max_vertices`` vertices, or None when it has no more.
 
     The copy keeps the mesh's name, so that messages and the orientation search's log name
-    the user's file.
+    the user's file; ``record`` receives that name and the copy's vertex count.
     """
     if not max_vertices or mesh.n_verts <= max_vertices:
         return None
@@ -92,6 +102,8 @@ def capped_mesh(mesh: Mesh, max_vertices: int | None) -> Mesh | None:
         max_vertices,
         time.perf_counter() - start,
     )
+    if record is not None:
+        record[mesh.name] = low.n_verts
     return Mesh(low.verts, low.faces, mesh.name, mesh.notes)
 
 

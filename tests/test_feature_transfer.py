@@ -110,3 +110,16 @@ def test_the_api_matches_with_capped_features_and_names_a_bad_cap():
     assert matching.status == "optimal" and matching.dense_map.shape == (source.n_verts,)
     with pytest.raises(OptionError, match="^bad option: features_max_vertices=10:"):
         api.match(source, target, resolution=60, features_max_vertices=10)
+
+
+def test_a_run_on_meshes_above_the_cap_says_so_in_result_json(tmp_path):
+    from tests.test_bad_inputs import creature as bad_input_creature
+    from tests.test_bad_inputs import files_pair, result_of, run_files
+
+    pair = files_pair(tmp_path, bad_input_creature(0, 900), bad_input_creature(1, 900))
+    code, folder = run_files(tmp_path, pair, "features_max_vertices=600")
+    report = result_of(folder)
+    assert code == 0 and report["status"] == "optimal"
+    capped = report["feature_inputs"]["computed_on_vertices"]
+    assert sorted(capped) == sorted([str(tmp_path / "source.off"), str(tmp_path / "target.off")])
+    assert all(500 <= count <= 610 for count in capped.values())

@@ -49,7 +49,7 @@ def test_search_turns_a_turned_shape_back(creature):
     (angle_same, out_same), (angle_turned, out_turned) = search.search(net, shapes)
     with torch.no_grad():
         expected = net(reference.features, reference.ops)
-    assert angle_same == 0.0 and angle_turned == 270.0
+    assert angle_same.degrees == 0.0 and angle_turned.degrees == 270.0
     assert torch.allclose(out_same, expected, atol=1e-5)
     assert torch.allclose(out_turned, expected, atol=1e-3)  # the turned shape, turned back
 
@@ -83,6 +83,25 @@ def test_extractor_turns_a_turned_mesh_back(tmp_path, creature, train_faces):
     without = LearnedExtractor(str(tmp_path / "a.pt"), use_cache=False, orientation_turns=0)
     assert np.abs(without(turned_mesh(creature, 90.0)) - as_is).max() > 0.05
     assert np.abs(without(creature) - as_is).max() < 1e-6
+
+
+@pytest.mark.parametrize("kind", ["lying", "random"])
+def test_extractor_presents_a_mesh_in_any_rotation_as_the_upright_one(tmp_path, creature, kind):
+    from spidermatch.synthetic import random_rotation
+
+    _checkpoint_with_reference(tmp_path / "a.pt", creature)
+    rotation = (
+        np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+        if kind == "lying"
+        else random_rotation(np.random.default_rng(7))
+    )
+    rotated = Mesh(1000.0 * creature.verts @ rotation.T + 40.0, creature.faces, "rotated")
+    extractor = LearnedExtractor(str(tmp_path / "a.pt"), use_cache=False)
+    as_is, seen = extractor(creature), extractor(rotated)
+    assert np.abs(seen - as_is).max() < 1e-3
+    assert "principal axes" in extractor.orientations["rotated"].describe()
+    only_turns = LearnedExtractor(str(tmp_path / "a.pt"), use_cache=False, orientation_frames=False)
+    assert np.abs(only_turns(rotated) - as_is).max() > 0.05
 
 
 def test_extractor_needs_a_reference_to_search(tmp_path, creature):
