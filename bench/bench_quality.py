@@ -16,8 +16,10 @@ at 1000 faces, FAUST_r humans with that checkpoint):
         --collection tosca_learned:../shared/data/TOSCA_animals:15:class:1000:CHECKPOINT \
         --out bench/results/quality_verdict_calibration
 
-A collection is NAME:DATA:N_PAIRS:any|class:RESOLUTION[:CHECKPOINT] (``class``: both shapes
-of a pair from one class, the name's letters before its number, as TOSCA's ground truth needs).
+A collection is NAME:DATA:N_PAIRS:any|class|FIRST..LAST:RESOLUTION[:CHECKPOINT] (``class``: both
+shapes of a pair from one class, the name's letters before its number, as TOSCA's ground truth
+needs; ``FIRST..LAST``: shapes named in that range only, e.g. ``tr_reg_070..tr_reg_079``, the
+FAUST_r shapes the label-free recipe does not train on).
 """
 
 from __future__ import annotations
@@ -42,8 +44,15 @@ from spidermatch.quality import judge  # noqa: E402
 
 
 def pair_list(data: Path, n_pairs: int, within: str, seed: int) -> list[tuple[str, str]]:
-    """``n_pairs`` seeded random ordered pairs of distinct shapes (of one class with ``within=class``)."""
+    """``n_pairs`` seeded random ordered pairs of distinct shapes.
+
+    ``within``: ``any``; ``class`` (of one class); ``FIRST..LAST`` (names in that range, e.g. the
+    shapes a network was not trained on).
+    """
     names = sorted(path.stem for path in (data / "off").glob("*.off"))
+    if ".." in within:
+        first, last = within.split("..")
+        names, within = [name for name in names if first <= name <= last], "any"
     kind = {name: re.sub(r"\d+$", "", name) for name in names}
     candidates = [(a, b) for a in names for b in names if a != b and (within == "any" or kind[a] == kind[b])]
     order = np.random.default_rng(seed).permutation(len(candidates))[:n_pairs]
