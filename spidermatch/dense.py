@@ -444,19 +444,76 @@ def feature_refined_vertices(
     ``(1 - <f_x, f_y>) + distance_weight * (|p - y| / radius)^2`` over the vertices
     within ``radius`` of p (unit-norm descriptors f).
 
+    The ``n_neighbours`` nearest vertices cover the radius on a mesh of benchmark density,
+    but only a small disc of it on a dense scan. When the radius holds more vertices than
+    that, the search runs coarse to fine (:func:`spread_levels`): over an evenly spread subset
+    of the target vertices within the radius, then over the ``n_neighbours`` vertices of the
+    next denser subset around the best so far, and so on to the full resolution (always
+    within the radius). The searched area, and so the map, does not shrink as the target's
+    resolution grows.
+
     Returns
     -------
     np.ndarray, shape (V_X,), int64
 
     """
+    costs = (source_unit, target_unit, settings)
+    centres = points
+    for allowed in spread_levels(target, float(np.median(radius)), settings.n_neighbours):
+        best = _cheapest_near(target.verts, allowed, centres, points, radius, costs)
+        centres = target.verts[best]
+    return best
+
+
+def spread_levels(target: Mesh, radius: float, n_neighbours: int) -> list[np.ndarray]:
+    """Target vertex subsets for the coarse-to-fine search, sparsest first; the last is every vertex.
+
+    The sparsest has about ``n_neighbours / 2`` vertices in a disc of ``radius``; each next one
+    is denser by ``n_neighbours / pi`` (so that ``n_neighbours`` of its vertices around a point
+    cover the spacing of the one before). A subset keeps one vertex per cell of a cubic grid.
+    A target with at most ``n_neighbours`` vertices per disc has the one full level.
+    """
+    per_disc = target.n_verts * np.pi * radius**2 / target.area
+    density, growth = 0.5 * n_neighbours, max(n_neighbours / np.pi, 2.0)
+    levels = []
+    while per_disc > n_neighbours and density < per_disc:
+        cell = radius * np.sqrt(np.pi / density)
+        cells = np.floor((target.verts - target.verts.min(axis=0)) / cell).astype(np.int64)
+        levels.append(np.sort(np.unique(cells, axis=0, return_index=True)[1]))
+        density *= growth
+    return [*levels, np.arange(target.n_verts)]
+
+
+def _cheapest_near(
+    verts: np.ndarray,
+    allowed: np.ndarray,
+    centres: np.ndarray,
+    points: np.ndarray,
+    radius: np.ndarray,
+    costs: tuple,
+) -> np.ndarray:
+    """For each point, the cheapest of the ``n_neighbours`` ``allowed`` vertices nearest to its centre.
+
+    Only candidates within ``radius`` of the point count, and the one nearest to the centre
+    always does (when the centre is the point, that is the nearest vertex).
+
+    Returns
+    -------
+    np.ndarray, shape (N,), int64
+        Vertex indices into ``verts``.
+
+    """
+    source_unit, target_unit, settings = costs
+    tree = cKDTree(verts[allowed])
+    k = min(settings.n_neighbours, len(allowed))
     out = np.empty(len(points), dtype=np.int64)
-    tree = cKDTree(target.verts)
-    rows = max(1, CANDIDATE_CELLS // max(settings.n_neighbours, 1))  # bounds the (rows, k) tables
+    rows = max(1, CANDIDATE_CELLS // max(k, 1))  # bounds the (rows, k) tables
     for start in range(0, len(points), rows):
         block = slice(start, start + rows)
-        index, distance, inside = local_candidates(
-            target, points[block], radius[block], settings.n_neighbours, tree
-        )
+        index = allowed[tree.query(centres[block], k=k)[1].reshape(-1, k)]
+        distance = np.linalg.norm(verts[index] - points[block, None, :], axis=2)
+        inside = distance <= radius[block, None]
+        inside[:, 0] = True
         similarity = candidate_similarities(source_unit[block], target_unit, index)
         cost = 1.0 - similarity + settings.distance_weight * (distance / radius[block, None]) ** 2
         cost[~inside] = np.inf

@@ -113,3 +113,39 @@ def test_pruned_patch_search_and_gathered_similarities_agree_with_the_full_ones(
     multiplied = dense.candidate_similarities(fx, fy, index)
     monkeypatch.setattr(dense, "GATHER_FACTOR", 0)
     np.testing.assert_allclose(dense.candidate_similarities(fx, fy, index), multiplied, rtol=1e-5, atol=1e-5)
+
+
+def test_feature_search_covers_the_whole_radius_on_a_dense_target():
+    """On a target much denser than n_neighbours per radius, the best match far from p is still found."""
+    import trimesh
+
+    from spidermatch.dense import DenseSettings, feature_refined_vertices, spread_levels
+    from spidermatch.mesh import Mesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=6)  # 40 962 vertices
+    target = Mesh(np.asarray(sphere.vertices), np.asarray(sphere.faces), "dense sphere")
+    settings = DenseSettings(n_neighbours=16)
+    point = np.array([[0.0, 0.0, 1.0]])
+    radius = np.array([0.5])
+    goal = np.array([np.sin(0.4), 0.0, np.cos(0.4)])  # 0.4 from the point, inside the radius
+    angle = np.minimum(np.linalg.norm(target.verts - goal, axis=1) / 0.6, np.pi / 2)
+    target_features = np.stack([np.cos(angle), np.sin(angle)], axis=1)  # most similar at the goal
+    source_features = np.array([[1.0, 0.0]])
+    assert len(spread_levels(target, 0.5, 16)) > 2
+    found = feature_refined_vertices(target, point, radius, source_features, target_features, settings)
+    nearest_to_goal = np.linalg.norm(target.verts - goal, axis=1).min()
+    assert np.linalg.norm(target.verts[found[0]] - goal) <= nearest_to_goal + 1e-9
+    # the plain search over the 16 vertices nearest the point stays near the point
+    coarse_target = Mesh(target.verts, target.faces, "same")
+    plain = settings.__class__(n_neighbours=16)
+    import spidermatch.dense as dense
+
+    original = dense.spread_levels
+    try:
+        dense.spread_levels = lambda target, *args: [np.arange(target.n_verts)]
+        stuck = feature_refined_vertices(
+            coarse_target, point, radius, source_features, target_features, plain
+        )
+    finally:
+        dense.spread_levels = original
+    assert np.linalg.norm(target.verts[stuck[0]] - goal) > 0.3
