@@ -25,6 +25,7 @@ import numpy as np
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
 from spidermatch.feature_transfer import pair_features as capped_pair_features
 from spidermatch.mesh import Mesh, MeshError, make_mesh
+from spidermatch.model_size import check_meshes_fit
 from spidermatch.validate import check_settings, feature_cap_problem, raise_problems
 
 logger = logging.getLogger(__name__)
@@ -272,6 +273,8 @@ def match(
 
     raise_problems([feature_cap_problem(features_max_vertices, "features_max_vertices")])
     source_mesh, target_mesh = as_mesh(source, "source"), as_mesh(target, "target")
+    dense_planned = settings is None or getattr(settings, "dense", None) is not None
+    check_meshes_fit((source_mesh.n_verts, target_mesh.n_verts), dense_planned)
     started = time.perf_counter()
     feat_x, feat_y, name = pair_features(features, source_mesh, target_mesh, features_max_vertices or None)
     feature_time = time.perf_counter() - started

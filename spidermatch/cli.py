@@ -29,6 +29,7 @@ from spidermatch.evaluate import sparse_map_errors
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, mesh_features, pair_features
 from spidermatch.io import load_mesh, read_vts
 from spidermatch.mesh import Mesh, MeshError
+from spidermatch.model_size import check_meshes_fit
 from spidermatch.pipeline import MatchError, MatchResult, MatchSettings, add_dense_map, match
 from spidermatch.solve.highs import SolverOptions
 from spidermatch.solve.strategies import strategy_for
@@ -358,7 +359,7 @@ def _start_run(output_dir: Path, result_path: Path | None, report: dict) -> None
 
 
 def check_inputs(cfg, inputs: MatchInputs, report: dict) -> None:
-    """Pair checks before any work: topology of both meshes, meshes far below the resolution.
+    """Pair checks before any work: topology, meshes far below the resolution, memory for their size.
 
     What was repaired on reading the meshes (re-oriented faces, split polygons) joins the
     report's warnings.
@@ -377,6 +378,8 @@ def check_inputs(cfg, inputs: MatchInputs, report: dict) -> None:
     warnings = coarseness_warnings((inputs.source, inputs.target), inputs.resolution)
     if warnings:
         report.setdefault("warnings", []).extend(warnings)
+    dense = bool(cfg.get("dense") is None or cfg.dense.get("enabled", True))
+    check_meshes_fit((inputs.source.n_verts, inputs.target.n_verts), dense)
 
 
 def resolution_text(inputs: MatchInputs) -> str:

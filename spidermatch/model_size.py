@@ -189,3 +189,54 @@ def check_model_fits(
         f"{expected.bytes / GIB:.1f} GiB with strategy {strategy}, but only {room / GIB:.1f} GiB of memory "
         f"is available; choose resolution={fits} or lower"
     )
+
+
+BYTES_PER_INPUT_VERTEX = {"dense": 7 * 1024, "sparse": 2 * 1024}
+"""Peak bytes per vertex of the two input meshes together, with and without the dense map: the
+meshes, their features (capped, then carried to every vertex), the decimation and, with the
+dense map, its search tables and consistency figures. Measured with ``bench/bench_user_copies.py``
+(process peaks of 1.4, 2.9 and 4.1 GB for pairs of 80 000, 200 000 and 320 000 vertices each;
+a pair of 1.28 M each ran out of a 16 GB address space in the dense outputs) and rounded up
+for the address space a process maps beyond what it touches."""
+
+
+def check_meshes_fit(n_verts: tuple[int, int], dense: bool, room: int | None = None) -> int:
+    """Refuse, before the features stage, a pair whose whole run would not fit in memory.
+
+    Parameters
+    ----------
+    n_verts : (int, int)
+        Vertices of the full-resolution source and target.
+    dense : bool
+        Whether the dense map (and its figures) will be made.
+    room : int, optional
+        Bytes available; by default :func:`available_memory`.
+
+    Returns
+    -------
+    int
+        The estimate in bytes.
+
+    Raises
+    ------
+    OptionError
+        The estimate exceeds the memory available; the message names the vertex counts, the
+        estimate, and what to change (``dense.enabled=false``, or decimating the meshes).
+
+    """
+    total = int(n_verts[0]) + int(n_verts[1])
+    needed = BASE_BYTES + BYTES_PER_INPUT_VERTEX["dense" if dense else "sparse"] * total
+    room = available_memory() if room is None else room
+    if room is None or needed <= room:
+        return needed
+    sparse_needed = BASE_BYTES + BYTES_PER_INPUT_VERTEX["sparse"] * total
+    fitting = int(max(room - BASE_BYTES, 0) / BYTES_PER_INPUT_VERTEX["dense"] / 2)
+    advice = f"decimate both meshes to about {fitting:,} vertices each before matching"
+    if dense and sparse_needed <= room:
+        only_matches = f"the certified matches only, about {sparse_needed / GIB:.1f} GiB"
+        advice = f"set dense.enabled=false ({only_matches}) or {advice}"
+    what = "a match with its dense map" if dense else "a match"
+    raise OptionError(
+        f"meshes of {n_verts[0]:,} and {n_verts[1]:,} vertices: {what} needs an estimated "
+        f"{needed / GIB:.1f} GiB, but only {room / GIB:.1f} GiB of memory is available; {advice}"
+    )

@@ -18,6 +18,7 @@ import pytest
 import trimesh
 from hydra import compose, initialize_config_module
 
+import spidermatch
 from spidermatch import guard
 from spidermatch.cli import run_eval, run_match
 from spidermatch.datasets import SyntheticShapes, write_dataset
@@ -153,6 +154,27 @@ def test_too_large_a_model_is_refused_naming_resolution(tmp_path, monkeypatch):
     assert code == 2 and result["status"] == "input_error", result
     assert "resolution=100000: matching at" in result["error"] and "choose resolution=" in result["error"]
     assert not (folder / "matches.csv").exists()
+
+
+def test_meshes_too_large_for_memory_are_refused_before_the_features(tmp_path, monkeypatch):
+    from spidermatch import model_size
+
+    source, target = creature(0, 3000), creature(1, 3000)
+    n_verts = source.n_verts + target.n_verts
+    per_vertex = model_size.BYTES_PER_INPUT_VERTEX
+    between = model_size.BASE_BYTES + (per_vertex["dense"] + per_vertex["sparse"]) // 2 * n_verts
+    monkeypatch.setattr(model_size, "available_memory", lambda: between)  # fits without the dense map only
+    pair = files_pair(tmp_path, source, target)
+    code, folder = run_files(tmp_path, pair)
+    result = result_of(folder)
+    assert code == 2 and result["status"] == "input_error", result
+    assert f"meshes of {source.n_verts:,} and {target.n_verts:,} vertices" in result["error"]
+    assert "set dense.enabled=false" in result["error"] and "features" not in result.get("timings_s", {})
+    code, folder = run_files(tmp_path, pair, "dense.enabled=false", out="sparse")
+    assert code == 0 and result_of(folder)["status"] == "optimal"
+    monkeypatch.setattr(model_size, "available_memory", lambda: model_size.BASE_BYTES)
+    with pytest.raises(OptionError, match="decimate both meshes to about"):
+        spidermatch.match(source, target, resolution=60)
 
 
 def test_largest_fitting_resolution_fits():
