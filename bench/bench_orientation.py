@@ -64,7 +64,7 @@ def main() -> None:
     from features.learned import LearnedExtractor
 
     extractors = {
-        frames: LearnedExtractor(args.checkpoint, orientation_frames=frames, use_cache=False)
+        frames: LearnedExtractor(args.checkpoint, orientation_frames=frames)
         for frames in (False, True)
     }
     dataset = open_dataset(args.data)
