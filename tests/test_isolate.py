@@ -78,3 +78,18 @@ def test_a_solver_process_forked_after_a_solve_in_the_parent_solves_too():
     in_child = solve_isolated(partial(solve_with_strategy, "plain"), model, graph, curve, SolverOptions(60.0))
     assert in_parent.status == in_child.status == "optimal"
     assert in_child.objective == pytest.approx(in_parent.objective, rel=1e-9)
+
+
+def _match_in_pool_worker(seed):
+    import spidermatch
+    from spidermatch.synthetic import make_creature
+
+    source, target = make_creature(600, seed=seed).mesh, make_creature(600, seed=seed + 1).mesh
+    return spidermatch.match(source, target, resolution=40).status
+
+
+def test_a_match_inside_a_multiprocessing_pool_worker_solves_in_the_worker():
+    import multiprocessing
+
+    with multiprocessing.get_context("fork").Pool(1) as pool:  # daemonic workers: no children allowed
+        assert pool.apply(_match_in_pool_worker, (3,)) == "optimal"

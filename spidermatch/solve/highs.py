@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import queue
 import threading
 import time
@@ -466,9 +467,15 @@ def fresh_in_child() -> None:
     """In a forked child: a solver thread of its own (the parent's is not in the child).
 
     HiGHS's thread pool is per calling thread, so the child's first solve starts a new one.
+    Registered to run after every ``fork`` (the solver process, a user's
+    ``multiprocessing.Pool`` worker), as a solve there would otherwise wait forever on the
+    parent's thread.
     """
     global _SOLVER_THREAD
     _SOLVER_THREAD = _SolverThread()
+
+
+os.register_at_fork(after_in_child=fresh_in_child)
 
 
 STOP_GRACE_S = 1.0  # after a signal, how long to wait for HiGHS to reach an interrupt check

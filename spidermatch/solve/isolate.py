@@ -70,8 +70,20 @@ class KnownFigures:
         }
 
 
+def can_isolate() -> bool:
+    """Whether this process may start the solver process.
+
+    A daemonic ``multiprocessing`` worker (e.g. of a ``multiprocessing.Pool`` a user runs
+    matches in) may not have children; there the solve runs in the worker itself.
+    """
+    return not multiprocessing.current_process().daemon
+
+
 def solve_isolated(solve, model, graph, curve, options: SolverOptions) -> SolveResult:
     """``solve(model, graph, curve, options)`` in a forked solver process.
+
+    In a process that may not have children (:func:`can_isolate`), ``solve`` runs here,
+    unisolated, with a log message saying so.
 
     Parameters
     ----------
@@ -92,6 +104,9 @@ def solve_isolated(solve, model, graph, curve, options: SolverOptions) -> SolveR
         A signal stopped the solve; ``known`` holds the child's figures.
 
     """
+    if not can_isolate():
+        logger.info("solving in this process: a daemonic worker process cannot start the solver process")
+        return solve(model, graph, curve, options)
     context = multiprocessing.get_context("fork")
     receiver, sender = context.Pipe(duplex=False)
     child = context.Process(
