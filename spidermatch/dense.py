@@ -470,18 +470,34 @@ def spread_levels(target: Mesh, radius: float, n_neighbours: int) -> list[np.nda
 
     The sparsest has about ``n_neighbours / 2`` vertices in a disc of ``radius``; each next one
     is denser by ``n_neighbours / pi`` (so that ``n_neighbours`` of its vertices around a point
-    cover the spacing of the one before). A subset keeps one vertex per cell of a cubic grid.
+    cover the spacing of the one before). A subset keeps one vertex per cell of a cubic grid
+    in the mesh's principal frame (:func:`principal_frame`).
     A target with at most ``n_neighbours`` vertices per disc has the one full level.
     """
     per_disc = target.n_verts * np.pi * radius**2 / target.area
     density, growth = 0.5 * n_neighbours, max(n_neighbours / np.pi, 2.0)
     levels = []
+    if per_disc > n_neighbours:
+        frame = principal_frame(target.verts)
     while per_disc > n_neighbours and density < per_disc:
         cell = radius * np.sqrt(np.pi / density)
-        cells = np.floor((target.verts - target.verts.min(axis=0)) / cell).astype(np.int64)
+        cells = np.floor(frame / cell).astype(np.int64)
         levels.append(np.sort(np.unique(cells, axis=0, return_index=True)[1]))
         density *= growth
     return [*levels, np.arange(target.n_verts)]
+
+
+def principal_frame(verts: np.ndarray) -> np.ndarray:
+    """Coordinates (V, 3) about the centroid along the principal axes.
+
+    A grid in this frame partitions a mesh the same way in any position and rotation (an
+    axis's sign does not matter: the cells' borders lie at whole multiples of the cell size
+    on both sides of the centroid), so the subsets it picks (the lowest vertex index per
+    cell) are those of the mesh as given in any frame.
+    """
+    centred = verts - verts.mean(axis=0)
+    _, axes = np.linalg.eigh(centred.T @ centred)
+    return centred @ axes
 
 
 def _cheapest_near(
