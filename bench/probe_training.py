@@ -1,7 +1,7 @@
 """Short training probes of a recipe on FAUST_r, validated often on a fixed subset of pairs.
 
     taskset -c 1 .venv/bin/python bench/probe_training.py --data ../shared/data/FAUST_r \
-        --out-dir /tmp/probes --name wks_xyz --minutes 7 -- train/model=diffusion_net_wks_xyz
+        --out-dir runs/probes --name wks_xyz --minutes 7 -- train/model=diffusion_net_wks_xyz
 
 Runs ``train/experiment=faust_r_unsup`` (or ``--experiment``) with the given Hydra overrides
 on one thread for ``--minutes`` of training (data preparation excluded; prepared shapes and
