@@ -238,8 +238,12 @@ class LearnedExtractor:
             use_cache,
             orientation_frames,
         )
-        self.turns: dict[str, float] = {}  # mesh name -> turn about the vertical (degrees)
         self.orientations: dict[str, Orientation] = {}  # mesh name -> how its input was presented
+
+    @property
+    def turns(self) -> dict[str, float]:
+        """Mesh name -> the turn about the vertical (degrees) the search chose, where it chose one."""
+        return {name: found.degrees for name, found in self.orientations.items() if found.degrees is not None}
 
     def __call__(self, mesh: Mesh) -> np.ndarray:
         """Return descriptors of shape (V, C_out), rows L2-normalised, float64."""
@@ -319,8 +323,6 @@ class LearnedExtractor:
         probes = None if probe is None else [probe]
         [(chosen, features)] = oriented_outputs(network, [shape], self.orientation, probes)
         if self.orientation is not None:
-            if chosen.degrees is not None:
-                self.turns[mesh.name] = chosen.degrees
             self.orientations[mesh.name] = chosen
         if chosen.degrees != 0.0:
             logger.info("%s: input %s (orientation search)", mesh.name, chosen.describe())

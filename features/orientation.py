@@ -29,7 +29,7 @@ import torch
 
 from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
 from features.fmap import FmapLossConfig, fmap_terms
-from spidermatch.mesh import Mesh
+from spidermatch.mesh import Mesh, principal_axes
 
 COORDINATE_INPUTS = ("xyz", "wks_xyz")
 
@@ -46,26 +46,9 @@ def rotated_coordinates(features: torch.Tensor, rotation: torch.Tensor) -> torch
     return torch.cat([features[:, :-3], features[:, -3:] @ rotation.T], dim=1)
 
 
-def turned_input(shape: ShapeInput, degrees: float) -> ShapeInput:
-    """``shape`` with its coordinate columns turned by ``degrees`` about the vertical axis."""
-    if degrees == 0.0:
-        return shape
-    return rotated_input(shape, turn_about_vertical(math.radians(degrees)))
-
-
 def rotated_input(shape: ShapeInput, rotation: torch.Tensor) -> ShapeInput:
     """``shape`` with its coordinate columns rotated by ``rotation`` (3, 3)."""
     return replace(shape, features=rotated_coordinates(shape.features, rotation))
-
-
-def principal_axes(coordinates: torch.Tensor) -> torch.Tensor:
-    """Unit principal axes (3, 3) of points (V, 3) as columns, largest spread first, det +1."""
-    centred = coordinates.double() - coordinates.double().mean(dim=0)
-    _, vectors = torch.linalg.eigh(centred.T @ centred)
-    axes = vectors.flip(1)
-    if torch.linalg.det(axes) < 0:
-        axes[:, 2] = -axes[:, 2]
-    return axes
 
 
 def axis_assignments() -> list[torch.Tensor]:
@@ -153,8 +136,8 @@ class OrientationSearch:
         ]
         if self.frames:
             ours, theirs = (
-                principal_axes(shape.features[:, -3:]),
-                principal_axes(self.reference.features[:, -3:]),
+                torch.from_numpy(principal_axes(coordinates.features[:, -3:].double().numpy()))
+                for coordinates in (shape, self.reference)
             )
             found += [Orientation(theirs @ assignment @ ours.T, None) for assignment in axis_assignments()]
         return found

@@ -378,8 +378,7 @@ def check_inputs(cfg, inputs: MatchInputs, report: dict) -> None:
     warnings = coarseness_warnings((inputs.source, inputs.target), inputs.resolution)
     if warnings:
         report.setdefault("warnings", []).extend(warnings)
-    dense = bool(cfg.get("dense") is None or cfg.dense.get("enabled", True))
-    check_meshes_fit((inputs.source.n_verts, inputs.target.n_verts), dense)
+    check_meshes_fit((inputs.source.n_verts, inputs.target.n_verts), dense_settings(cfg) is not None)
 
 
 def resolution_text(inputs: MatchInputs) -> str:

@@ -46,7 +46,7 @@ from scipy.spatial import cKDTree
 
 from spidermatch.coarse import coarse_labels, faces_by_label, project_onto_coarse, ring_faces
 from spidermatch.costs import unit_rows
-from spidermatch.mesh import Mesh
+from spidermatch.mesh import Mesh, principal_axes
 from spidermatch.remesh import Decimated
 from spidermatch.surface import (
     closest_triangle_points,
@@ -495,9 +495,7 @@ def principal_frame(verts: np.ndarray) -> np.ndarray:
     on both sides of the centroid), so the subsets it picks (the lowest vertex index per
     cell) are those of the mesh as given in any frame.
     """
-    centred = verts - verts.mean(axis=0)
-    _, axes = np.linalg.eigh(centred.T @ centred)
-    return centred @ axes
+    return (verts - verts.mean(axis=0)) @ principal_axes(verts)
 
 
 def _cheapest_near(

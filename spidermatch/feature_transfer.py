@@ -59,17 +59,12 @@ def pair_features(
     target_features : np.ndarray, shape (V_tgt, D)
 
     """
+    if not hasattr(extractor, "pair_features"):
+        return tuple(mesh_features(extractor, mesh, max_vertices, record) for mesh in (source, target))
     centred = [mesh.centred() for mesh in (source, target)]
     capped = [capped_mesh(mesh, max_vertices, record) for mesh in centred]
-    work = [mesh if low is None else low for low, mesh in zip(capped, centred)]
-    if hasattr(extractor, "pair_features"):
-        computed = extractor.pair_features(*work)
-    else:
-        computed = (extractor(work[0]), extractor(work[1]))
-    return tuple(
-        np.asarray(features) if low is None else carry_features(np.asarray(features), low, mesh)
-        for features, low, mesh in zip(computed, capped, centred)
-    )
+    computed = extractor.pair_features(*(mesh if low is None else low for low, mesh in zip(capped, centred)))
+    return tuple(on_full_mesh(features, low, mesh) for features, low, mesh in zip(computed, capped, centred))
 
 
 def mesh_features(
@@ -78,9 +73,13 @@ def mesh_features(
     """Features (V, D) of one mesh (centred) through ``extractor``, on at most ``max_vertices``."""
     centred = mesh.centred()
     low = capped_mesh(centred, max_vertices, record)
-    if low is None:
-        return np.asarray(extractor(centred))
-    return carry_features(np.asarray(extractor(low)), low, centred)
+    return on_full_mesh(extractor(centred if low is None else low), low, centred)
+
+
+def on_full_mesh(features, low: Mesh | None, full: Mesh) -> np.ndarray:
+    """``features`` (V_low, D) of the capped copy ``low`` carried to ``full`` (as they are without a copy)."""
+    features = np.asarray(features)
+    return features if low is None else carry_features(features, low, full)
 
 
 def capped_mesh(mesh: Mesh, max_vertices: int | None, record: dict | None = None) -> Mesh | None:

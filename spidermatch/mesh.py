@@ -123,6 +123,19 @@ def triangle_areas(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
 
 
+def principal_axes(points: np.ndarray) -> np.ndarray:
+    """Unit principal axes of points (N, 3) as the columns of a rotation (3, 3).
+
+    Largest spread first; the last axis's sign makes the determinant +1.
+    """
+    centred = np.asarray(points, dtype=np.float64) - np.mean(points, axis=0)
+    _, vectors = np.linalg.eigh(centred.T @ centred)
+    axes = vectors[:, ::-1].copy()
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] = -axes[:, 2]
+    return axes
+
+
 def face_edges(faces: np.ndarray) -> np.ndarray:
     """The three sorted edges of every face, shape (F, 3, 2); edge k is opposite corner k."""
     opposite = np.stack([faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]], axis=1)
