@@ -3,11 +3,13 @@
 import math
 import os
 import signal
+import time
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from spidermatch.solve import isolate
 from spidermatch.solve.highs import SolveResult, SolverOptions
 from spidermatch.solve.isolate import KnownFigures, describe_exit, solve_isolated
 from spidermatch.solve.progress import report_known
@@ -49,6 +51,65 @@ def test_a_child_killed_by_a_signal_gives_an_error_result_with_the_figures_it_re
     assert (result.n_vars, result.n_rows) == (7, 3)
 
 
+def hanging_after_a_path(model, graph, curve, options):
+    """Reports an incumbent with its solution and a bound, then never returns (HiGHS in a phase
+    without interrupt checks)."""
+    report_known(incumbent=2.0, bound=1.5, path=np.array([1, 4]))
+    report_known(incumbent=1.9)  # a cheaper one reported without its solution
+    time.sleep(600)
+
+
+def hanging_before_any_path(model, graph, curve, options):
+    report_known(bound=1.5)
+    time.sleep(600)
+
+
+def test_a_solver_process_past_its_time_limit_is_stopped_and_its_last_path_returned(monkeypatch):
+    monkeypatch.setattr(isolate, "OVERRUN_KILL_S", 0.5)
+    result = solve_isolated(hanging_after_a_path, MODEL, None, None, SolverOptions(time_limit=0.5))
+    assert result.status == "feasible" and "past the time limit" in result.message
+    np.testing.assert_array_equal(result.x, [0, 1, 0, 0, 1, 0, 0])
+    assert (result.objective, result.bound) == (2.0, 1.5) and result.gap == pytest.approx(0.25)
+
+
+def test_a_stopped_solver_process_whose_path_is_within_the_gap_is_optimal(monkeypatch):
+    monkeypatch.setattr(isolate, "OVERRUN_KILL_S", 0.5)
+    options = SolverOptions(time_limit=0.5, mip_rel_gap=0.3)
+    assert solve_isolated(hanging_after_a_path, MODEL, None, None, options).status == "optimal"
+
+
+def test_a_solver_process_stopped_before_any_path_has_no_solution(monkeypatch):
+    monkeypatch.setattr(isolate, "OVERRUN_KILL_S", 0.5)
+    result = solve_isolated(hanging_before_any_path, MODEL, None, None, SolverOptions(time_limit=0.5))
+    assert result.status == "no_solution" and result.x is None and result.bound == 1.5
+
+
+def test_paths_found_by_a_restricted_solve_are_reported_in_full_model_columns():
+    """rcfix solves restricted models: each reported incumbent must be a closed path of the
+    full model with the reported cost (else a stopped run would return a wrong matching)."""
+    from spidermatch.solve.connectivity import is_closed_path
+    from spidermatch.solve.progress import set_known_sink
+    from spidermatch.solve.strategies import solve_with_strategy
+    from tests.test_ilp import creature_instance
+
+    curve, graph, model = creature_instance(60, seed=5)
+    reported = []
+    set_known_sink(lambda incumbent, bound, path: path is None or reported.append((incumbent, path)))
+    try:
+        result = solve_with_strategy("rcfix", model, graph, curve, SolverOptions(time_limit=60.0))
+    finally:
+        set_known_sink(None)
+    assert result.status == "optimal" and reported
+    for objective, path in reported:
+        x = np.zeros(model.n_vars)
+        x[path] = 1.0
+        assert model.costs @ x == pytest.approx(objective, rel=1e-9)
+        rows = model.matrix @ x
+        assert np.all(rows >= model.row_lower - 1e-9) and np.all(rows <= model.row_upper + 1e-9)
+        assert is_closed_path(graph, x)
+    assert min(objective for objective, _ in reported) == pytest.approx(result.objective, rel=1e-9)
+
+
 def test_known_figures_keep_the_cheapest_incumbent_and_the_largest_bound():
     known = KnownFigures()
     assert known.as_dict() == {"incumbent_objective": None, "bound": None, "gap": None}
@@ -81,15 +142,27 @@ def test_a_solver_process_forked_after_a_solve_in_the_parent_solves_too():
 
 
 def _match_in_pool_worker(seed):
+    """(status, whether a solver process was started) of a small match."""
+    import logging
+
     import spidermatch
     from spidermatch.synthetic import make_creature
 
+    messages = []
+    handler = logging.Handler()
+    handler.emit = lambda record: messages.append(record.getMessage())
+    logger = logging.getLogger("spidermatch.solve.isolate")
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
     source, target = make_creature(600, seed=seed).mesh, make_creature(600, seed=seed + 1).mesh
-    return spidermatch.match(source, target, resolution=40).status
+    status = spidermatch.match(source, target, resolution=40).status
+    return status, any(message.startswith("solver process") for message in messages)
 
 
-def test_a_match_inside_a_multiprocessing_pool_worker_solves_in_the_worker():
+def test_a_match_inside_a_multiprocessing_pool_worker_has_a_solver_process_too():
+    """``multiprocessing`` refuses children to the pool's daemonic workers; the solver process is
+    forked directly, so a run there is also protected from native crashes and overruns."""
     import multiprocessing
 
-    with multiprocessing.get_context("fork").Pool(1) as pool:  # daemonic workers: no children allowed
-        assert pool.apply(_match_in_pool_worker, (3,)) == "optimal"
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.apply(_match_in_pool_worker, (3,)) == ("optimal", True)

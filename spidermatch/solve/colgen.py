@@ -470,7 +470,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     if incumbent is None:  # the stay path satisfies every row and cut: a run that times out still has it
         incumbent = np.zeros(lazy.n_vars)
         incumbent[stay] = 1.0
-    report_known(objective_of(lazy, incumbent), lp.bound)
+    report_known(objective_of(lazy, incumbent), lp.bound, np.flatnonzero(incumbent > 0.5))
     base = np.union1d(lp.support(), stay)
     threshold, best = first_threshold(lp.bound, lazy.graph.n_layers), None
     priced = by_path(lazy, lp.pricing)
@@ -499,7 +499,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         proven_here = result.status == "optimal" and outside >= result.bound  # the MIP's proof covers all
         certified = proven_here or relative_gap(result.objective, bound) <= options.mip_rel_gap
         best = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
-        report_known(result.objective, bound)
+        report_known(result.objective, bound, np.flatnonzero(incumbent > 0.5))
         logger.info(
             "colgen step %d: threshold %.3g, objective %.8g, bound for the full model %.8g",
             step, threshold, result.objective, bound,

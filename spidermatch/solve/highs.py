@@ -254,6 +254,10 @@ class HighsSession:
         The last ``KEEP_IMPROVING`` improving solutions HiGHS reported during the MIP runs of
         this session, as (objective, x of shape (n,)), oldest first. Lazy rows added later
         may cut some off.
+    full_columns : np.ndarray, shape (n_columns,), or None
+        Set by a caller that solves a restricted model: the full-model id of each of its
+        columns, so that closed paths found during a run are reported in full-model ids
+        (:func:`~spidermatch.solve.progress.report_known`).
 
     """
 
@@ -275,6 +279,7 @@ class HighsSession:
         _pass_model(self.highs, model, integer=not relax)
         self.improving: list[tuple[float, np.ndarray]] = []
         self.offered: tuple[float, np.ndarray] | None = None  # the start solution given by set_solution
+        self.full_columns: np.ndarray | None = None  # full-model id of each model column, where known
         self.costs = np.asarray(model.costs, dtype=np.float64)
         self.last_mip = (math.inf, -math.inf)  # (incumbent, dual bound) at HiGHS's last MIP callback
         self.cancel = threading.Event()  # set when the waiting thread gave up: HiGHS stops at its next check
@@ -320,9 +325,15 @@ class HighsSession:
             if self.usable is not None and objective < min(self.best_usable, self.best_unusable):
                 if self.usable(x):
                     self.best_usable = objective
-                    report_known(incumbent=objective)  # one closed path: an incumbent of the full model
+                    report_known(incumbent=objective, path=self._full_model_path(x))  # one closed path
                 else:
                     self.best_unusable = objective
+
+    def _full_model_path(self, x: np.ndarray) -> np.ndarray | None:
+        """The full-model columns (sorted ids) a 0/1 solution x (n,) of this session sets, if known."""
+        if self.full_columns is None:
+            return None
+        return self.full_columns[np.flatnonzero(x[: self.full_columns.size] > 0.5)]
 
     def set_solution(self, x: np.ndarray) -> None:
         """Offer a feasible 0/1 vector (n,) as a starting incumbent."""

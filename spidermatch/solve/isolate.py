@@ -19,6 +19,11 @@ Signals: SIGINT/SIGTERM reach the parent (and, from a terminal, ``timeout`` or S
 usually the child too). The parent forwards them; the child stops HiGHS and sends what it
 knew, and the parent raises :class:`~spidermatch.guard.RunInterrupted` with it. A child
 that has not answered ``STOP_GRACE_S`` after that is killed.
+
+Time limit: HiGHS does not check its time limit or interrupt flag in some phases (a MIP's
+root analytic-centre computation, presolve). A child still solving ``OVERRUN_KILL_S``
+past the time limit is killed, and the last closed path it reported (with its solution,
+:func:`~spidermatch.solve.progress.report_known`) is the result, with the last bound.
 """
 
 from __future__ import annotations
@@ -31,6 +36,8 @@ import signal
 import threading
 import time
 
+import numpy as np
+
 from spidermatch import guard
 from spidermatch.solve import highs as highs_module
 from spidermatch.solve.highs import SolveResult, SolverOptions, relative_gap
@@ -42,22 +49,36 @@ logger = logging.getLogger(__name__)
 
 POLL_S = 0.05  # how often the parent looks at the pipe, the child and the signals
 STOP_GRACE_S = 3.0  # after a forwarded signal, how long the child may take to answer
+OVERRUN_KILL_S = 8.0  # how far past its time limit the solver process may run before it is killed
 
 
 class KnownFigures:
-    """The cheapest incumbent objective and the largest full-model bound reported so far."""
+    """The cheapest incumbent objective and the largest full-model bound reported so far.
+
+    Attributes
+    ----------
+    path : np.ndarray, shape (k,), or None
+        The full-model columns of the cheapest incumbent reported *with* its solution.
+    path_objective : float
+        That incumbent's objective (``inf`` while there is none).
+
+    """
 
     def __init__(self) -> None:
         self.incumbent = math.inf
         self.bound = -math.inf
+        self.path: np.ndarray | None = None
+        self.path_objective = math.inf
 
-    def update(self, incumbent: float | None, bound: float | None) -> bool:
-        """Take in a report; True if it improved either figure."""
+    def update(self, incumbent: float | None, bound: float | None, path: np.ndarray | None = None) -> bool:
+        """Take in a report; True if it improved either figure or the path."""
         better = False
         if incumbent is not None and incumbent < self.incumbent:
             self.incumbent, better = float(incumbent), True
         if bound is not None and bound > self.bound:
             self.bound, better = float(bound), True
+        if path is not None and incumbent is not None and incumbent < self.path_objective:
+            self.path, self.path_objective, better = np.asarray(path, dtype=np.int64), float(incumbent), True
         return better
 
     def as_dict(self) -> dict:
@@ -71,18 +92,58 @@ class KnownFigures:
 
 
 def can_isolate() -> bool:
-    """Whether this process may start the solver process.
+    """Whether this platform can fork the solver process (not on Windows)."""
+    return hasattr(os, "fork")
 
-    A daemonic ``multiprocessing`` worker (e.g. of a ``multiprocessing.Pool`` a user runs
-    matches in) may not have children; there the solve runs in the worker itself.
+
+class ForkedChild:
+    """``target(*args)`` in a forked process, with the parts of ``multiprocessing.Process`` used here.
+
+    ``multiprocessing`` refuses children to a daemonic process (e.g. a worker of a
+    ``multiprocessing.Pool`` a user runs matches in), because a daemon killed abruptly would
+    leave them running; the solver process dies with its parent instead
+    (:func:`_die_with_parent`), so it is forked directly and works there too.
+
+    Attributes
+    ----------
+    pid : int
+    exitcode : int or None
+        None while running; the exit code, or minus the signal number that ended it.
+
     """
-    return not multiprocessing.current_process().daemon
+
+    def __init__(self, target, args: tuple) -> None:
+        self.exitcode: int | None = None
+        self.pid = os.fork()
+        if self.pid == 0:  # the child: never returns
+            code = 1
+            try:
+                target(*args)
+                code = 0
+            finally:
+                os._exit(code)
+
+    def is_alive(self) -> bool:
+        if self.exitcode is None:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+            if pid != 0:
+                self.exitcode = os.waitstatus_to_exitcode(status)
+        return self.exitcode is None
+
+    def kill(self) -> None:
+        if self.is_alive():
+            os.kill(self.pid, signal.SIGKILL)
+
+    def join(self) -> None:
+        if self.exitcode is None:
+            _, status = os.waitpid(self.pid, 0)
+            self.exitcode = os.waitstatus_to_exitcode(status)
 
 
 def solve_isolated(solve, model, graph, curve, options: SolverOptions) -> SolveResult:
     """``solve(model, graph, curve, options)`` in a forked solver process.
 
-    In a process that may not have children (:func:`can_isolate`), ``solve`` runs here,
+    Where processes cannot be forked (:func:`can_isolate`), ``solve`` runs here,
     unisolated, with a log message saying so.
 
     Parameters
@@ -105,19 +166,15 @@ def solve_isolated(solve, model, graph, curve, options: SolverOptions) -> SolveR
 
     """
     if not can_isolate():
-        logger.info("solving in this process: a daemonic worker process cannot start the solver process")
+        logger.info("solving in this process: this platform cannot fork the solver process")
         return solve(model, graph, curve, options)
-    context = multiprocessing.get_context("fork")
-    receiver, sender = context.Pipe(duplex=False)
-    child = context.Process(
-        target=_child_main, args=(sender, solve, model, graph, curve, options), name="spidermatch-solver"
-    )
+    receiver, sender = multiprocessing.Pipe(duplex=False)
     start = time.perf_counter()
-    child.start()
+    child = ForkedChild(_child_main, (receiver, sender, solve, model, graph, curve, options))
     sender.close()
     logger.info("solver process %d started", child.pid)
     try:
-        return _watch(child, receiver, model, start)
+        return _watch(child, receiver, model, start, options)
     finally:
         receiver.close()
         if child.is_alive():
@@ -125,8 +182,9 @@ def solve_isolated(solve, model, graph, curve, options: SolverOptions) -> SolveR
         child.join()
 
 
-def _child_main(sender, solve, model, graph, curve, options) -> None:
-    """The solver process: run ``solve`` and send its outcome (multiprocessing then calls ``os._exit``)."""
+def _child_main(receiver, sender, solve, model, graph, curve, options) -> None:
+    """The solver process: run ``solve`` and send its outcome (:class:`ForkedChild` then exits)."""
+    receiver.close()  # the parent's end
     _die_with_parent()
     guard.fresh_in_child()
     highs_module.fresh_in_child()
@@ -136,14 +194,17 @@ def _child_main(sender, solve, model, graph, curve, options) -> None:
         with lock:
             sender.send(message)
 
-    def sink(incumbent, bound) -> None:  # also called from HiGHS's callbacks, on the solver thread
+    def sink(incumbent, bound, path) -> None:  # also called from HiGHS's callbacks, on the solver thread
         with lock:
-            if known.update(incumbent, bound):
-                sender.send(("known", known.as_dict()))
+            had = known.path
+            if known.update(incumbent, bound, path):
+                new_path = known.path if known.path is not had else None  # a path is sent once
+                sender.send(("known", known.as_dict(), new_path, known.path_objective))
 
     set_known_sink(sink)
     try:
         result = solve(model, graph, curve, options)
+        send(("finishing",))  # sending a large solution may outlast the time limit: no kill now
         send(("result", result))
     except guard.RunInterrupted as stop:
         send(("interrupted", stop.signum, stop.known))
@@ -172,9 +233,15 @@ def _die_with_parent() -> None:
         os._exit(1)
 
 
-def _watch(child, receiver, model, start: float) -> SolveResult:
-    """Wait for the child's outcome, forwarding signals; what it sent, or a failure result."""
-    known, forwarded_at = {}, None
+def _watch(child, receiver, model, start: float, options: SolverOptions) -> SolveResult:
+    """Wait for the child's outcome, forwarding signals; what it sent, or a failure result.
+
+    A child still solving ``OVERRUN_KILL_S`` past ``options.time_limit`` (seconds from
+    ``start``) is killed, and its last reported incumbent and bound are returned
+    (:func:`_overran`).
+    """
+    known, path, finishing, forwarded_at = {}, None, False, None
+    kill_at = start + options.time_limit + OVERRUN_KILL_S
     with guard.native_call():  # a signal is only recorded meanwhile: the child must hear of it first
         while True:
             if receiver.poll(POLL_S):
@@ -185,6 +252,11 @@ def _watch(child, receiver, model, start: float) -> SolveResult:
                 kind = message[0]
                 if kind == "known":
                     known = message[1]
+                    if message[2] is not None:
+                        path = (message[3], message[2])
+                    continue
+                if kind == "finishing":
+                    finishing = True
                     continue
                 if kind == "result":
                     return message[1]
@@ -201,8 +273,50 @@ def _watch(child, receiver, model, start: float) -> SolveResult:
                 logger.warning("the solver process did not stop within %.0f s: killed", STOP_GRACE_S)
                 child.kill()
                 _raise_interrupted(guard.received_signal(), known)
+            if not finishing and forwarded_at is None and time.perf_counter() > kill_at:
+                child.kill()
+                child.join()
+                return _overran(known, path, model, time.perf_counter() - start, options)
     child.join()
     return _failure(child.exitcode, known, model, time.perf_counter() - start)
+
+
+def _overran(known: dict, path, model, wall: float, options: SolverOptions) -> SolveResult:
+    """The result of a solver process killed for running past its time limit.
+
+    HiGHS checks neither its time limit nor its interrupt flag in some phases (a MIP's
+    root analytic-centre computation ran more than 10 min past a 600 s limit at 4000 faces
+    with 1.3 M columns). The last incumbent the child reported with its solution is the
+    result, with the last certified bound: "optimal" if they are within
+    ``options.mip_rel_gap`` (both hold for the full model), else "feasible"; "no_solution"
+    without an incumbent.
+    """
+    bound = known.get("bound")
+    bound = -math.inf if bound is None else bound
+    overrun, time_limit = wall - options.time_limit, options.time_limit
+    logger.error(
+        "the solver process was %.0f s past the %.0f s time limit inside HiGHS (a phase without "
+        "interrupt checks): stopped",
+        overrun,
+        time_limit,
+    )
+    words = f"stopped {overrun:.0f} s past the time limit inside HiGHS"
+    if path is None:
+        message = f"{words}, before any solution was known"
+        return SolveResult(
+            "no_solution", None, math.inf, bound, math.nan, wall, model.n_vars, model.n_rows,
+            int(getattr(model, "nnz", 0) or 0), message,
+        )  # fmt: skip
+    objective, columns = path
+    x = np.zeros(model.n_vars)
+    x[columns] = 1.0
+    gap = relative_gap(objective, bound)
+    status = "optimal" if gap <= options.mip_rel_gap else "feasible"
+    message = f"{words}; the best closed path and bound reported before"
+    return SolveResult(
+        status, x, objective, bound, gap, wall, model.n_vars, model.n_rows,
+        int(getattr(model, "nnz", 0) or 0), message,
+    )  # fmt: skip
 
 
 def _raise_interrupted(signum: int, figures: dict) -> None:

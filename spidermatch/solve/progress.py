@@ -81,17 +81,17 @@ class ProgressLog:
         )
 
 
-_KNOWN_SINK = None  # (incumbent, bound) -> None; set in a solver process (spidermatch.solve.isolate)
+_KNOWN_SINK = None  # (incumbent, bound, path) -> None; set in a solver process (spidermatch.solve.isolate)
 
 
 def set_known_sink(sink) -> None:
-    """Send the figures of :func:`report_known` to ``sink(incumbent, bound)`` (None: nowhere)."""
+    """Send the figures of :func:`report_known` to ``sink(incumbent, bound, path)`` (None: nowhere)."""
     global _KNOWN_SINK
     _KNOWN_SINK = sink
 
 
-def report_known(incumbent: float | None = None, bound: float | None = None) -> None:
-    """Record what a run already knows, in case the solver dies before it returns.
+def report_known(incumbent: float | None = None, bound: float | None = None, path=None) -> None:
+    """Record what a run already knows, in case the solver dies or hangs before it returns.
 
     Parameters
     ----------
@@ -99,7 +99,10 @@ def report_known(incumbent: float | None = None, bound: float | None = None) -> 
         Objective of a solution of the full model that passes as a result (one closed path).
     bound : float, optional
         A lower bound certified for the full model.
+    path : np.ndarray, shape (k,), optional
+        The incumbent itself: the full-model columns it sets to 1 (sorted ids). With it, a
+        solve stopped from outside still returns that matching, not only its cost.
 
     """
     if _KNOWN_SINK is not None:
-        _KNOWN_SINK(incumbent, bound)
+        _KNOWN_SINK(incumbent, bound, path)

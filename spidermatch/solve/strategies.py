@@ -180,6 +180,7 @@ def solve_with_cuts(
         sub = model if columns is None else restrict_columns(model, columns)
     session = HighsSession(sub, options)
     column_ids = np.arange(n_vars) if columns is None else columns
+    session.full_columns = column_ids
     flows = SessionFlows(graph, column_ids, session)
     if imposes_paths(sub):  # only one closed path counts as an incumbent (for stop_when and the repair)
         session.usable = lambda x_sub: is_closed_path(graph, x_sub[: column_ids.size], columns)
@@ -479,7 +480,7 @@ def solve_reduced_cost_fixing(
         certified = result.status == "optimal" and gap == options.mip_rel_gap and outside >= result.bound
         bound = min(result.bound, outside)
         result = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
-        report_known(result.objective, bound)
+        report_known(result.objective, bound, np.flatnonzero(incumbent > 0.5))
         logger.info(
             "rcfix phase %d: objective %.6g, bound for the full model %.6g", phase, result.objective, bound
         )
