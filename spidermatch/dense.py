@@ -395,7 +395,7 @@ def _nearest_in_own_patches(projected, labels, points, images) -> np.ndarray:
         k = min(NEAR_VERTICES, vertices.size)
         index = cKDTree(projected[vertices]).query(points[row], k=k)[1].reshape(len(row), k)
         near[row, slot, :k] = vertices[index]
-    return near.reshape(len(points), -1)
+    return near.reshape(len(points), images.shape[1] * NEAR_VERTICES)  # also for no points
 
 
 def mean_incident_edge_length(mesh: Mesh) -> np.ndarray:

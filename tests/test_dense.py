@@ -115,6 +115,20 @@ def test_pruned_patch_search_and_gathered_similarities_agree_with_the_full_ones(
     np.testing.assert_allclose(dense.candidate_similarities(fx, fy, index), multiplied, rtol=1e-5, atol=1e-5)
 
 
+def test_pruned_search_where_every_point_lies_near_its_patches(monkeypatch):
+    """The pruned search's fallback got no points when every point had a patch vertex among its
+    nearest vertices and failed on them (a time-limited cat -> dog run at 500 faces, whose
+    matching had collapsed onto a few target vertices)."""
+    import spidermatch.dense as dense
+
+    mesh = make_creature(3000, seed=1).mesh.centred()
+    low = decimate(mesh, 80)
+    monkeypatch.setattr(dense, "PRUNE_WIDTH", 0)  # every point takes the pruned search
+    identity = np.arange(low.mesh.n_verts)
+    mapped = densify(mesh, mesh, low, low, identity, mesh.verts, mesh.verts, DenseSettings("interp", smoothing=0))
+    assert np.mean(mapped.vertex == np.arange(mesh.n_verts)) > 0.98
+
+
 def test_feature_search_covers_the_whole_radius_on_a_dense_target():
     """On a target much denser than n_neighbours per radius, the best match far from p is still found."""
     import trimesh
