@@ -490,7 +490,7 @@ os.register_at_fork(after_in_child=fresh_in_child)
 
 
 STOP_GRACE_S = 1.0  # after a signal, how long to wait for HiGHS to reach an interrupt check
-OVERRUN_GRACE_S = 5.0  # how far HiGHS may run past its time limit before it is interrupted (callbacks)
+OVERRUN_GRACE_S = 2.0  # how far HiGHS may run past its time limit before it is interrupted (callbacks)
 
 
 def run_interruptibly(highs, figures_so_far, cancel: threading.Event, deadline: float | None = None) -> None:
