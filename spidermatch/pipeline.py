@@ -175,7 +175,11 @@ class MatchResult:
                 "is infeasible): try a higher resolution or another curve seed"
             )
         if status == "no_solution":
-            raise NoSolutionError(f"the solver stopped without any solution ({self.solve.message})")
+            raise NoSolutionError(
+                f"the solver stopped without any solution ({self.solve.message}) after "
+                f"{self.solve.wall_time:.0f} s: raise solver.time_limit, or match at a lower resolution "
+                f"(this run: {self.graph.n_layers} curve positions x {self.graph.n_target} target vertices)"
+            )
         if status == "error" or self.low_map is None:
             raise SolverFailure(f"the solver failed: {self.solve.message}")
         if self.check is not None and not self.check.ok:

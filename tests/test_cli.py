@@ -83,6 +83,7 @@ def test_time_limit_without_solution_exits_non_zero(tmp_path):
         assert code == 0 and result["proven_optimal"] is False
     else:
         assert code == 4 and result["status"] == "no_solution" and "stopped" in result["error"]
+        assert "raise solver.time_limit" in result["error"]  # and says what to do
 
 
 def test_learned_features_in_match(tmp_path, tiny_checkpoint):
