@@ -49,6 +49,7 @@ def run_instance(task: tuple) -> dict:
     from spidermatch.evaluate import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match
     from spidermatch.solve.highs import SolverOptions
+    from spidermatch.validate import OptionError
 
     start = time.perf_counter()
     x, y, feat_x, feat_y = load_pair_with_features(data, pair, features, checkpoint, adapt_steps)
@@ -59,7 +60,13 @@ def run_instance(task: tuple) -> dict:
         curve_matching=matching,
         solver=SolverOptions(time_limit=time_limit),
     )
-    result = match(x.mesh, y.mesh, feat_x, feat_y, settings)
+    try:
+        result = match(x.mesh, y.mesh, feat_x, feat_y, settings)
+    except OptionError as refused:  # e.g. the memory estimate: a row saying why, and the next instance
+        return {
+            "pair": f"{pair[0]}:{pair[1]}", "faces": faces, "strategy": strategy, "status": "refused",
+            "message": str(refused), "features_s": round(features_s, 2), **peak_memory(),
+        }  # fmt: skip
     solved = result.solve
     row = {
         "pair": f"{pair[0]}:{pair[1]}",
