@@ -42,7 +42,19 @@ FINAL_STATUSES = (
     "optimal", "feasible", "infeasible", "no_solution", "solver_failure", "input_error", "output_error",
 )  # fmt: skip
 DOCUMENTED_EXIT_CODES = (0, 2, 3, 4, 5, 6)  # README "Statuses and exit codes" (1: an uncaught error)
-COLUMNS = ("n", "kind", "pair", "faces", "adapt", "exit_code", "status", "gap", "solve_s", "process_s", "peak_mib")
+COLUMNS = (
+    "n",
+    "kind",
+    "pair",
+    "faces",
+    "adapt",
+    "exit_code",
+    "status",
+    "gap",
+    "solve_s",
+    "process_s",
+    "peak_mib",
+)
 
 
 class Collections:
@@ -93,7 +105,9 @@ def draw_runs(collections: Collections, n_pairs: int, configurations: list, seed
         kind = KINDS[index % len(KINDS)]
         faces, adapt = configurations[(index // len(KINDS)) % len(configurations)]
         source, target = collections.draw(kind, rng)
-        runs.append({"n": index, "kind": kind, "source": source, "target": target, "faces": faces, "adapt": adapt})
+        runs.append(
+            {"n": index, "kind": kind, "source": source, "target": target, "faces": faces, "adapt": adapt}
+        )
     return runs
 
 
@@ -176,6 +190,15 @@ def summary_of(rows: list[dict], key) -> dict:
     return summary
 
 
+def summaries_of(rows: list[dict]) -> dict:
+    """The summaries by configuration, by kind of pair, and over all rows."""
+    return {
+        "by_configuration": summary_of(rows, lambda row: f"{row['faces']} faces, adapt {row['adapt']}"),
+        "by_kind": summary_of(rows, lambda row: row["kind"]),
+        "all": summary_of(rows, lambda row: "all")["all"],
+    }
+
+
 def _count(values) -> dict:
     counts: dict = {}
     for value in values:
@@ -192,7 +215,9 @@ def format_row(row: dict) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     """Run every drawn pair as one ``spidermatch-match`` process and write rows and summaries."""
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--faust", type=Path, required=True, help="FAUST_r-style folder (off/, corres/)")
     parser.add_argument("--tosca", type=Path, required=True, help="TOSCA_animals-style folder")
     parser.add_argument("--faust-checkpoint", required=True, help="label-free network for two humans")
@@ -201,13 +226,34 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--faces", nargs="+", type=int, default=[500, 1000])
     parser.add_argument("--adapt-steps", nargs="+", type=int, default=[0, 20])
     parser.add_argument("--time-limit", type=float, default=60.0, help="solver.time_limit of every run")
-    parser.add_argument("--grace", type=float, default=10.0, help="seconds past the limit that count as a hang")
+    parser.add_argument(
+        "--grace", type=float, default=10.0, help="seconds past the limit that count as a hang"
+    )
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--runs", default=None, help="FIRST:STOP: only these of the drawn runs (e.g. one share per core)"
+    )
+    parser.add_argument(
+        "--combine", nargs="+", type=Path, default=None, help="write --out from these outputs' rows instead"
+    )
     parser.add_argument("--out", default="bench/results/stress_faust_tosca_500_1000.json")
     args = parser.parse_args(argv)
+    if args.combine:
+        rows = sorted(
+            (row for path in args.combine for row in json.loads(path.read_text())["rows"]),
+            key=lambda r: r["n"],
+        )
+        write_rows(
+            Path(args.out), rows, {"summary": summaries_of(rows), "combined": [str(p) for p in args.combine]}
+        )
+        print(json.dumps(summaries_of(rows)["all"], indent=2))
+        return
     collections = Collections(args.faust, args.tosca)
     configurations = list(itertools.product(args.faces, args.adapt_steps))
     runs = draw_runs(collections, args.pairs, configurations, args.seed)
+    if args.runs:
+        first, stop = (int(part) for part in args.runs.split(":"))
+        runs = runs[first:stop]
     out, rows = Path(args.out), []
     out.parent.mkdir(parents=True, exist_ok=True)
     print(" | ".join(COLUMNS), flush=True)
@@ -219,13 +265,10 @@ def main(argv: list[str] | None = None) -> None:
             row = pair_row(f"{run['source']}:{run['target']}", code, wall, peak, run_dir)
             rows.append(checked_row(run, row, run_dir, args.time_limit, args.grace))
             print(format_row(rows[-1]), flush=True)
-            summaries = {
-                "by_configuration": summary_of(rows, lambda row: f"{row['faces']} faces, adapt {row['adapt']}"),
-                "by_kind": summary_of(rows, lambda row: row["kind"]),
-                "all": summary_of(rows, lambda row: "all")["all"],
-            }
-            write_rows(out, rows, {"summary": summaries})  # after every run: a stopped run keeps its rows
-    print(json.dumps(summaries["all"], indent=2))
+            write_rows(
+                out, rows, {"summary": summaries_of(rows)}
+            )  # after every run: a stopped run keeps its rows
+    print(json.dumps(summaries_of(rows)["all"], indent=2))
     print(f"wrote {out} and {out.with_suffix('.csv')}")
 
 
