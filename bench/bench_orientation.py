@@ -64,8 +64,7 @@ def main() -> None:
     from features.learned import LearnedExtractor
 
     extractors = {
-        frames: LearnedExtractor(args.checkpoint, orientation_frames=frames)
-        for frames in (False, True)
+        frames: LearnedExtractor(args.checkpoint, orientation_frames=frames) for frames in (False, True)
     }
     dataset = open_dataset(args.data)
     spec = args.shapes if ".." in args.shapes else args.shapes.split(",")

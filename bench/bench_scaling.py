@@ -113,7 +113,11 @@ def peak_memory() -> dict:
     """
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     solver = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
-    return {"main_peak_mib": round(own, 1), "solver_peak_mib": round(solver, 1), "peak_mib": round(own + solver, 1)}
+    return {
+        "main_peak_mib": round(own, 1),
+        "solver_peak_mib": round(solver, 1),
+        "peak_mib": round(own + solver, 1),
+    }
 
 
 def skipped_row(pair: tuple, faces: int, strategy: str, limit: float) -> dict:

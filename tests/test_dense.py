@@ -125,7 +125,9 @@ def test_pruned_search_where_every_point_lies_near_its_patches(monkeypatch):
     low = decimate(mesh, 80)
     monkeypatch.setattr(dense, "PRUNE_WIDTH", 0)  # every point takes the pruned search
     identity = np.arange(low.mesh.n_verts)
-    mapped = densify(mesh, mesh, low, low, identity, mesh.verts, mesh.verts, DenseSettings("interp", smoothing=0))
+    mapped = densify(
+        mesh, mesh, low, low, identity, mesh.verts, mesh.verts, DenseSettings("interp", smoothing=0)
+    )
     assert np.mean(mapped.vertex == np.arange(mesh.n_verts)) > 0.98
 
 

@@ -56,7 +56,9 @@ def main() -> None:
     from spidermatch.solve.connectivity import connectivity_cuts
     from spidermatch.solve.highs import HighsSession, SolverOptions
 
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--data", required=True)
     parser.add_argument("--checkpoint", required=True)
     parser.add_argument("--pair", default="tr_reg_076:tr_reg_077")
@@ -79,7 +81,8 @@ def main() -> None:
         rows, lower, upper = connectivity_cuts(graph, components)
         session.add_rows(rows[:, lp.columns], lower, upper)
         result = session.run()
-        print(f"round {round_number}: {len(components)} components, {rows.shape[0]} cuts, LP {result.objective:.6f}")
+        found = f"{len(components)} components, {rows.shape[0]} cuts"
+        print(f"round {round_number}: {found}, LP {result.objective:.6f}")
 
 
 if __name__ == "__main__":

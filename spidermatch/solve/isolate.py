@@ -126,6 +126,7 @@ class ForkedChild:
                 os._exit(code)
 
     def is_alive(self) -> bool:
+        """Whether the child still runs (reaps it, and sets ``exitcode``, once it has ended)."""
         if self.exitcode is None:
             pid, status = os.waitpid(self.pid, os.WNOHANG)
             if pid != 0:
@@ -133,10 +134,12 @@ class ForkedChild:
         return self.exitcode is None
 
     def kill(self) -> None:
+        """SIGKILL the child if it still runs."""
         if self.is_alive():
             os.kill(self.pid, signal.SIGKILL)
 
     def join(self) -> None:
+        """Wait for the child to end and set ``exitcode``."""
         if self.exitcode is None:
             _, status = os.waitpid(self.pid, 0)
             self.exitcode = os.waitstatus_to_exitcode(status)
