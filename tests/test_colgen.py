@@ -209,6 +209,29 @@ def test_no_wider_mip_starts_with_too_little_time_left_and_the_answer_stays_hone
     assert solved.gap == pytest.approx((solved.objective - solved.bound) / abs(solved.objective), rel=1e-6)
 
 
+def test_a_mip_that_would_not_fit_in_memory_is_not_started_and_the_answer_stays_honest(monkeypatch):
+    """No memory for the first MIP: the stay path (or the LP's), the LP bound, `feasible`, and why."""
+    import spidermatch.model_size as model_size
+    import spidermatch.solve.colgen as colgen
+
+    lazy = creature_lazy(24, 3)
+    plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
+    monkeypatch.setattr(colgen, "_restricted_mip", lambda *args: pytest.fail("a MIP was started"))
+    monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)
+    monkeypatch.setattr(model_size, "available_memory", lambda: 1024)  # 1 KiB left
+    solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, replace(EXACT, time_limit=600.0))
+    assert solved.status == "feasible" and "would need about" in solved.message
+    assert solved.bound <= plain.objective * (1 + 1e-9) <= solved.objective * (1 + 1e-9)
+    assert_one_checked_path(lazy, solved.x)
+
+
+def test_mip_memory_problem_names_both_sizes():
+    from spidermatch.solve.colgen import MIP_BYTES_PER_COLUMN, mip_memory_problem
+
+    assert mip_memory_problem(1000, room=1000 * MIP_BYTES_PER_COLUMN) is None
+    assert "1001 columns" in mip_memory_problem(1001, room=1000 * MIP_BYTES_PER_COLUMN)
+
+
 def test_a_further_step_needs_five_seconds_and_five_percent_of_the_limit():
     from spidermatch.solve.colgen import too_little_time_for_a_step
 

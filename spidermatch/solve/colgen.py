@@ -102,6 +102,8 @@ PRICED_SPAN = 0.02  # one pricing pass keeps the columns up to this times |L(y)|
 GROWTH = 4.0  # each further MIP: the threshold grows by at most this factor (or to U - L(y))
 JUMP = 8.0  # ... unless U - L(y) is within this factor: then straight to U - L(y)
 MAX_STEPS = 10
+MIP_BYTES_PER_COLUMN = 5 * 1024  # a restricted MIP's peak memory in HiGHS, per column (with cuts, flows,
+# the root's analytic-centre copy); measured 3.8-4.5 KiB at 4000 faces (bench/README.md)
 LAST_STEP_MIN_S = 5.0  # a further MIP starts only with at least this much time left ...
 LAST_STEP_MIN_SHARE = 0.05  # ... and this share of the time limit (4000 faces: one started with
 # seconds left spent 20 s past the limit building and loading 1.8 M columns)
@@ -481,6 +483,9 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         columns = np.union1d(selection.columns, base)
         if incumbent is not None:
             columns = np.union1d(columns, np.flatnonzero(incumbent > 0.5))
+        too_large = mip_memory_problem(columns.size)
+        if too_large:
+            return _stopped_before_mip(lazy, lp, incumbent, best, too_large)
         built.append(columns)
         outside = lp.bound + max(selection.min_outside, 0.0)
         stop_when = useless_beyond(outside, lp.bound + JUMP * threshold, options.mip_rel_gap)
@@ -520,6 +525,38 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     if best is None:
         return replace(result, bound=lp.bound, gap=math.nan)
     return replace(best, status="feasible", message=f"not certified within {MAX_STEPS} steps")
+
+
+def mip_memory_problem(n_columns: int, room: int | None = None) -> str | None:
+    """Why a restricted MIP over ``n_columns`` columns should not start (too little memory), or None.
+
+    ``room``: bytes this process may still allocate (default: :func:`available_memory`; None: unknown).
+    """
+    from spidermatch.model_size import GIB, available_memory
+
+    room = available_memory() if room is None else room
+    needed = n_columns * MIP_BYTES_PER_COLUMN
+    if room is None or needed <= room:
+        return None
+    return (
+        f"the next MIP over {n_columns} columns would need about {needed / GIB:.1f} GiB, "
+        f"but only {room / GIB:.1f} GiB of memory is available"
+    )
+
+
+def _stopped_before_mip(
+    lazy, lp, incumbent: np.ndarray, best: SolveResult | None, reason: str
+) -> SolveResult:
+    """The result when the next MIP is not started (``reason``): the last step's, or the incumbent's."""
+    logger.warning("colgen: %s: stopping with the best closed path known", reason)
+    message = f"not certified: {reason}"
+    if best is not None:
+        return replace(best, status="feasible", message=message)
+    objective = objective_of(lazy, incumbent)
+    return SolveResult(
+        "feasible", incumbent, objective, lp.bound, relative_gap(objective, lp.bound), 0.0,
+        lazy.n_vars, lp.n_rows, 0, message,
+    )  # fmt: skip
 
 
 def interrupted_full_model_figures(known: dict, lp_bound: float, outside: float) -> dict:
