@@ -31,7 +31,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench_scaling import write_rows
+from bench_scaling import format_row, write_rows
 from feature_options import pair_problem
 
 VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
@@ -102,13 +102,6 @@ def pair_row(pair: str, code: int, wall: float, peak_mib: float, run_dir: Path) 
     return row
 
 
-def format_row(row: dict) -> str:
-    """One printed table row."""
-    return " | ".join(
-        f"{row.get(k):.4g}" if isinstance(row.get(k), float) else str(row.get(k)) for k in COLUMNS
-    )
-
-
 def summary_of(rows: list[dict], cold_cache: bool = False) -> dict:
     """The median process time of the runs that exited 0, and whether the caches were cold."""
     finished = [row["process_s"] for row in rows if row.get("exit_code") == 0]
@@ -151,7 +144,7 @@ def main(argv: list[str] | None = None) -> None:
                 match_command(args, source, target, run_dir), Path(work) / "log.txt", cache_dir
             )
             rows.append(pair_row(pair, code, wall, peak, run_dir))
-            print(format_row(rows[-1]), flush=True)
+            print(format_row(rows[-1], COLUMNS, 4), flush=True)
             write_rows(
                 out, rows, summary_of(rows, args.cold_cache)
             )  # after every pair: a run stopped half way keeps what it measured

@@ -143,10 +143,10 @@ def write_rows(out: Path, rows: list[dict], extra: dict | None = None) -> None:
         writer.writerows(rows)
 
 
-def format_row(row: dict) -> str:
-    """One printed table row."""
+def format_row(row: dict, columns: tuple = COLUMNS, digits: int = 6) -> str:
+    """One printed table row: the values of ``columns``, floats to ``digits`` significant digits."""
     return " | ".join(
-        f"{row.get(k):.6g}" if isinstance(row.get(k), float) else str(row.get(k)) for k in COLUMNS
+        f"{row.get(k):.{digits}g}" if isinstance(row.get(k), float) else str(row.get(k)) for k in columns
     )
 
 

@@ -35,7 +35,7 @@ import tempfile
 from pathlib import Path
 
 from bench_match_process import match_executable, pair_row, run_process
-from bench_scaling import write_rows
+from bench_scaling import format_row, write_rows
 
 KINDS = ("humans", "one animal class", "two animal classes", "human and animal")
 FINAL_STATUSES = (
@@ -76,7 +76,9 @@ class Collections:
         if kind == "humans":
             return tuple(rng.sample(self.humans, 2))
         if kind == "one animal class":
-            chosen = rng.choice(sorted({self.animal_class(name) for name in self.animals}))
+            classes = sorted({self.animal_class(name) for name in self.animals})
+            paired = [c for c in classes if sum(self.animal_class(n) == c for n in self.animals) > 1]
+            chosen = rng.choice(paired)  # a class with two animals at least
             members = [name for name in self.animals if self.animal_class(name) == chosen]
             return tuple(rng.sample(members, 2))
         if kind == "two animal classes":
@@ -206,13 +208,6 @@ def _count(values) -> dict:
     return counts
 
 
-def format_row(row: dict) -> str:
-    """One printed table row."""
-    return " | ".join(
-        f"{row.get(k):.4g}" if isinstance(row.get(k), float) else str(row.get(k)) for k in COLUMNS
-    )
-
-
 def main(argv: list[str] | None = None) -> None:
     """Run every drawn pair as one ``spidermatch-match`` process and write rows and summaries."""
     parser = argparse.ArgumentParser(
@@ -264,7 +259,7 @@ def main(argv: list[str] | None = None) -> None:
             code, wall, peak = run_process(command, Path(work) / f"{run['n']:03d}.log")
             row = pair_row(f"{run['source']}:{run['target']}", code, wall, peak, run_dir)
             rows.append(checked_row(run, row, run_dir, args.time_limit, args.grace))
-            print(format_row(rows[-1]), flush=True)
+            print(format_row(rows[-1], COLUMNS, 4), flush=True)
             write_rows(
                 out, rows, {"summary": summaries_of(rows)}
             )  # after every run: a stopped run keeps its rows
