@@ -256,9 +256,7 @@ def _watch(child, receiver, model, start: float, options: SolverOptions) -> Solv
                     break
                 kind = message[0]
                 if kind == "known":
-                    known = message[1]
-                    if message[2] is not None:
-                        path = (message[3], message[2])
+                    known, path = _with_report(message, path)
                     continue
                 if kind == "finishing":
                     finishing = True
@@ -281,9 +279,28 @@ def _watch(child, receiver, model, start: float, options: SolverOptions) -> Solv
             if not finishing and forwarded_at is None and time.perf_counter() > kill_at:
                 child.kill()
                 child.join()
+                known, path = _last_reports(receiver, known, path)
                 return _overran(known, path, model, time.perf_counter() - start, options)
     child.join()
     return _failure(child.exitcode, known, model, time.perf_counter() - start)
+
+
+def _last_reports(receiver, known: dict, path):
+    """``known`` and ``path`` updated by the reports still in the pipe of a killed child."""
+    try:
+        while receiver.poll(0):
+            message = receiver.recv()
+            if message[0] == "known":
+                known, path = _with_report(message, path)
+    except (EOFError, OSError):
+        pass
+    return known, path
+
+
+def _with_report(message: tuple, path):
+    """The figures of a ``("known", figures, new path or None, its objective)`` report, and the path then."""
+    _, figures, new_path, objective = message
+    return figures, path if new_path is None else (objective, new_path)
 
 
 def _overran(known: dict, path, model, wall: float, options: SolverOptions) -> SolveResult:
