@@ -189,7 +189,9 @@ class ShapeInput:
     ops: TorchOperators
 
 
-def input_features(mesh: Mesh, ops: Operators, config: ModelConfig) -> np.ndarray:
+def input_features(
+    mesh: Mesh, ops: Operators, config: ModelConfig, scale_area: float | None = None
+) -> np.ndarray:
     """Input features of ``mesh`` for the network.
 
     Parameters
@@ -199,6 +201,10 @@ def input_features(mesh: Mesh, ops: Operators, config: ModelConfig) -> np.ndarra
     ops : Operators
         The mesh's operators with at least ``config.n_eig`` eigenpairs.
     config : ModelConfig
+    scale_area : float, optional
+        The area that sets the unit of length (default: the mesh's own). A part of a
+        surface (a partial scan) is measured in the unit of the whole it belongs to, so that
+        its input and diffusion times match the whole's (see :mod:`spidermatch.partial`).
 
     Returns
     -------
@@ -208,17 +214,22 @@ def input_features(mesh: Mesh, ops: Operators, config: ModelConfig) -> np.ndarra
         divided by sqrt(area), or both side by side (xyz in the last 3 columns).
 
     """
-    centred = (mesh.verts - mesh.verts.mean(axis=0)) / np.sqrt(mesh.area)
+    area = mesh.area if scale_area is None else float(scale_area)
+    centred = (mesh.verts - mesh.verts.mean(axis=0)) / np.sqrt(area)
     if config.input == "xyz":
         return centred
     n_wks = config.in_channels - (XYZ_CHANNELS if config.input == "wks_xyz" else 0)
     # eigenvalues of the unit-area shape: invariant to scale
-    wks = wave_kernel_signature(ops.evals[: config.n_eig] * mesh.area, ops.evecs[:, : config.n_eig], n_wks)
+    wks = wave_kernel_signature(ops.evals[: config.n_eig] * area, ops.evecs[:, : config.n_eig], n_wks)
     return wks if config.input == "wks" else np.concatenate([wks, centred], axis=1)
 
 
 def prepare_shape(
-    mesh: Mesh, config: ModelConfig, use_cache: bool = True, dtype: torch.dtype = torch.float32
+    mesh: Mesh,
+    config: ModelConfig,
+    use_cache: bool = True,
+    dtype: torch.dtype = torch.float32,
+    scale_area: float | None = None,
 ) -> ShapeInput:
     """Compute (or load from the operator cache) the network input of one mesh.
 
@@ -230,6 +241,9 @@ def prepare_shape(
         Gives the input kind, C_in and K = ``n_eig``.
     use_cache : bool
         Use the on-disk operator cache of :func:`spidermatch.operators.cached_operators`.
+    dtype : torch.dtype
+    scale_area : float, optional
+        The area that sets the unit of length (see :func:`input_features`).
 
     Returns
     -------
@@ -240,8 +254,9 @@ def prepare_shape(
     ops = cached_operators(mesh, k=config.n_eig, gradients=True, use_cache=use_cache)
     if ops.k < config.n_eig:
         logger.warning("%s: only %d eigenpairs available (asked %d)", mesh.name, ops.k, config.n_eig)
-    features = input_features(mesh, ops, config)
-    torch_ops = TorchOperators.from_operators(ops, mesh.area, dtype=dtype)
+    area = mesh.area if scale_area is None else float(scale_area)
+    features = input_features(mesh, ops, config, area)
+    torch_ops = TorchOperators.from_operators(ops, area, dtype=dtype)
     return ShapeInput(torch.from_numpy(np.ascontiguousarray(features)).to(dtype), torch_ops)
 
 

@@ -62,6 +62,12 @@ class DataConfig:
         present each shape in this many turns about the vertical axis and keep the one whose
         unsupervised loss against the first training shape is lowest (no labels; see
         :mod:`features.orientation`). 0 turns the search off; WKS inputs ignore it.
+    partial_copies : int
+        Partial copies made of every training shape (plane cuts, holes and single views in
+        turn; :func:`spidermatch.partial.random_cut`), for the cut-consistency term of the
+        loss (``loss.w_partial``). 0: none.
+    partial_keep : list of two floats
+        Range of the area fraction a partial copy keeps.
     """
 
     root: str | None = None
@@ -76,10 +82,18 @@ class DataConfig:
     val_points: int | None = 500
     use_cache: bool = True
     orientation_turns: int = 0
+    partial_copies: int = 0
+    partial_keep: Any = (0.3, 0.7)
 
     def __post_init__(self) -> None:
         if self.orientation_turns < 0:
             raise ValueError(f"data.orientation_turns must be >= 0, got {self.orientation_turns}")
+        if self.partial_copies < 0:
+            raise ValueError(f"data.partial_copies must be >= 0, got {self.partial_copies}")
+        keep = list(self.partial_keep)
+        if len(keep) != 2 or not 0.0 < keep[0] <= keep[1] < 1.0:
+            raise ValueError(f"data.partial_keep must be [low, high] with 0 < low <= high < 1, got {keep}")
+        self.partial_keep = [float(keep[0]), float(keep[1])]
         if self.val_pairs not in VAL_PAIR_MODES:
             raise ValueError(f"data.val_pairs must be one of {VAL_PAIR_MODES}, got {self.val_pairs!r}")
         if self.augment_rotation not in ROTATION_MODES:
@@ -176,6 +190,8 @@ class TrainConfig:
             raise ValueError(f"optim.ema_decay must be in [0, 1), got {self.optim.ema_decay}")
         if self.optim.schedule not in SCHEDULES:
             raise ValueError(f"optim.schedule must be one of {SCHEDULES}, got {self.optim.schedule!r}")
+        if self.loss.w_partial > 0 and self.data.partial_copies == 0:
+            raise ValueError("loss.w_partial > 0 needs partial copies of the shapes: set data.partial_copies")
         for key in ("n_steps", "val_every", "checkpoint_every", "log_every"):
             if getattr(self.run, key) < 1:
                 raise ValueError(f"run.{key} must be positive, got {getattr(self.run, key)}")

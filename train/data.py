@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -22,6 +23,7 @@ from features.wks import normalise_rows
 from spidermatch.datasets import Shape, ShapeFolder, SyntheticShapes, open_dataset
 from spidermatch.geodesics import GeodesicDistances
 from spidermatch.mesh import Mesh
+from spidermatch.partial import CUT_KINDS, random_cut
 from spidermatch.remesh import decimate
 from train.config import DataConfig
 
@@ -43,12 +45,34 @@ class TrainShape:
         Training-resolution vertex nearest to each reference point.
     mesh : Mesh, optional
         The mesh at training resolution (V_low vertices).
+    partials : tuple of PartialInput
+        Partial copies of the mesh (``data.partial_copies``), for the cut-consistency loss.
     """
 
     name: str
     input: ShapeInput
     corr: torch.Tensor | None
     mesh: Mesh | None = None
+    partials: tuple = ()
+
+
+@dataclass(frozen=True, eq=False)
+class PartialInput:
+    """A partial copy of a training shape, measured in the whole shape's unit of length.
+
+    Attributes
+    ----------
+    input : ShapeInput
+        Features (V_p, C_in) and operators of the part.
+    to_whole : torch.Tensor, shape (V_p,), int64
+        Vertex of the training-resolution shape each vertex of the part is.
+    kind : str
+        How it was cut (:data:`spidermatch.partial.CUT_KINDS`).
+    """
+
+    input: ShapeInput
+    to_whole: torch.Tensor
+    kind: str
 
 
 @dataclass(frozen=True, eq=False)
@@ -208,7 +232,30 @@ def prepare_train_shape(shape: Shape, model: ModelConfig, config: DataConfig) ->
         mesh = low
     elif shape.corr is not None:
         corr = torch.from_numpy(np.asarray(shape.corr, dtype=np.int64))
-    return TrainShape(shape.name, prepare_shape(mesh, model, use_cache=config.use_cache), corr, mesh)
+    partials = partial_inputs(mesh, shape.name, model, config)
+    whole = prepare_shape(mesh, model, use_cache=config.use_cache)
+    return TrainShape(shape.name, whole, corr, mesh, partials)
+
+
+def partial_inputs(mesh: Mesh, name: str, model: ModelConfig, config: DataConfig) -> tuple[PartialInput, ...]:
+    """``config.partial_copies`` random cuts of ``mesh`` (kinds in turn), seeded by the shape's name.
+
+    Each part is measured in the whole's unit of length (``scale_area``), as the partial
+    mode presents a partial scan in its target's unit. A kind that keeps no part within
+    ``config.partial_keep`` (e.g. a single view of a thin shape) is skipped, with a warning.
+    """
+    rng = np.random.default_rng(zlib.crc32(name.encode()))
+    parts = []
+    for k in range(config.partial_copies):
+        kind = CUT_KINDS[k % len(CUT_KINDS)]
+        try:
+            part = random_cut(mesh, kind, rng, tuple(config.partial_keep), f"{name}#{kind}{k}")
+        except ValueError as error:
+            logger.warning("partial copy %d of %s skipped: %s", k, name, error)
+            continue
+        shape = prepare_shape(part.mesh, model, use_cache=config.use_cache, scale_area=mesh.area)
+        parts.append(PartialInput(shape, torch.from_numpy(part.to_original), kind))
+    return tuple(parts)
 
 
 def prepare_val_shape(shape: Shape, model: ModelConfig, config: DataConfig) -> ValShape:

@@ -51,7 +51,7 @@ from train.data import (
     split_names,
     validation_pairs,
 )
-from train.losses import pair_loss
+from train.losses import cut_consistency_loss, pair_loss
 from train.report import LossLog, write_figure, write_validation_csv
 from train.validation import Validation, prepare_validation
 
@@ -271,6 +271,10 @@ def train_step(state: TrainingState, shapes: list[TrainShape], config: TrainConf
     feat_y = state.network(network_input(y, config, state.generator), y.input.ops)
     corr = (x.corr, y.corr) if x.corr is not None and y.corr is not None else None
     loss, terms = pair_loss(feat_x, feat_y, x.input.ops, y.input.ops, config.loss, corr)
+    if config.loss.w_partial > 0 and x.partials:
+        partial = partial_term(state, x, feat_x, config)
+        loss = loss + config.loss.w_partial * partial
+        terms["partial"] = partial.item()
     if not torch.isfinite(loss):
         raise FloatingPointError(f"step {state.step + 1}: loss is {float(loss)} on pair ({x.name}, {y.name})")
     state.optimiser.zero_grad(set_to_none=True)
@@ -284,6 +288,22 @@ def train_step(state: TrainingState, shapes: list[TrainShape], config: TrainConf
     state.last_loss = loss.item()
     state.last_terms = {"loss": state.last_loss, **terms}
     return state.last_loss
+
+
+def partial_term(state: TrainingState, shape: TrainShape, feat_whole: torch.Tensor, config: TrainConfig):
+    """Cut-consistency loss of a random partial copy of ``shape`` against its features ``feat_whole``.
+
+    The copy's coordinates are not rotated: with ``data.augment_rotation`` the whole's
+    are, and the term then also asks for features that do not depend on the rotation.
+    """
+    choice = int(torch.randint(len(shape.partials), (1,), generator=state.generator))
+    part = shape.partials[choice]
+    feat_part = state.network(part.input.features, part.input.ops)
+    n_part = part.to_whole.shape[0]
+    points = None
+    if n_part > config.loss.partial_points:
+        points = torch.randperm(n_part, generator=state.generator)[: config.loss.partial_points]
+    return cut_consistency_loss(feat_part, feat_whole, part.to_whole, config.loss.temperature, points)
 
 
 def validate(

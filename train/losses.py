@@ -23,9 +23,15 @@ class LossConfig(FmapLossConfig):
     ----------
     w_sup : float
         Weight of the supervised loss on ground-truth reference points (0: unsupervised).
+    w_partial : float
+        Weight of the cut-consistency term (:func:`cut_consistency_loss`; 0: off).
+    partial_points : int
+        Kept vertices of a partial copy scored by that term at each step.
     """
 
     w_sup: float = 0.0
+    w_partial: float = 0.0
+    partial_points: int = 512
 
 
 def supervised_loss(p_xy: torch.Tensor, corr_x: torch.Tensor, corr_y: torch.Tensor) -> torch.Tensor:
@@ -45,6 +51,44 @@ def supervised_loss(p_xy: torch.Tensor, corr_x: torch.Tensor, corr_y: torch.Tens
     if corr_x.shape != corr_y.shape:
         raise ValueError(f"correspondences differ in length: {tuple(corr_x.shape)} vs {tuple(corr_y.shape)}")
     return -torch.log(p_xy[corr_x, corr_y].clamp(min=1e-12)).mean()
+
+
+def cut_consistency_loss(
+    feat_part: torch.Tensor,
+    feat_whole: torch.Tensor,
+    to_whole: torch.Tensor,
+    temperature: float,
+    points: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Cross-entropy of finding each vertex of a cut copy at its own vertex of the whole shape.
+
+    A partial copy knows exactly where each of its vertices came from, so this term needs
+    no labels: it asks the features of a part to be those of the whole, which makes them
+    survive cuts, holes and single views.
+
+    Parameters
+    ----------
+    feat_part : torch.Tensor, shape (V_p, C)
+        Features of the partial copy.
+    feat_whole : torch.Tensor, shape (V, C)
+        Features of the whole shape.
+    to_whole : torch.Tensor, shape (V_p,), int64
+        Vertex of the whole each vertex of the part is.
+    temperature : float
+        Softmax temperature over cosine similarities.
+    points : torch.Tensor, shape (P,), int64, optional
+        The part's vertices to score (default: all).
+
+    Returns
+    -------
+    torch.Tensor, scalar
+    """
+    if points is not None:
+        feat_part, to_whole = feat_part[points], to_whole[points]
+    part = torch.nn.functional.normalize(feat_part, dim=-1)
+    whole = torch.nn.functional.normalize(feat_whole, dim=-1)
+    logits = part @ whole.T / temperature
+    return torch.nn.functional.cross_entropy(logits, to_whole)
 
 
 def pair_loss(

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-LOSS_COLUMNS = ("step", "loss", "bij", "orth", "couple", "sup", "lr", "seconds")
+LOSS_COLUMNS = ("step", "loss", "bij", "orth", "couple", "sup", "partial", "lr", "seconds")
 VALIDATION_COLUMNS = (
     "step",
     "val_error",

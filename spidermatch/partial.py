@@ -1,0 +1,238 @@
+"""Partial shapes: cut copies of a mesh with their index maps, and recognising a partial pair.
+
+A partial shape is what a scanner leaves of a surface: a part cut off by a plane (the
+floor, the edge of the field of view), holes where nothing was seen, or the side one
+camera sees. :func:`plane_cut`, :func:`holes_cut` and :func:`view_cut` make such copies of a
+mesh with exact ground truth (the original index of every kept vertex); the benchmarks and
+the training augmentation use them. :func:`pair_kind` decides whether a source is a part of
+its target, the case the partial mode matches (``docs/partial.md``).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components, dijkstra
+
+from spidermatch.mesh import Mesh, face_edges, vertex_fans
+
+logger = logging.getLogger(__name__)
+
+CUT_KINDS = ("plane", "holes", "view")
+"""The kinds of partial copy :func:`cut` makes."""
+
+
+@dataclass(frozen=True, eq=False)
+class PartialShape:
+    """A connected, manifold part of a mesh.
+
+    Attributes
+    ----------
+    mesh : Mesh
+        The kept part (V_P vertices).
+    to_original : np.ndarray, shape (V_P,), int64
+        Vertex of the original mesh each kept vertex is.
+    kept_area : float
+        Area of the part over the area of the original, in (0, 1].
+    kind : str
+        How it was cut (one of :data:`CUT_KINDS`).
+
+    """
+
+    mesh: Mesh
+    to_original: np.ndarray
+    kept_area: float
+    kind: str
+
+
+def kept_part(mesh: Mesh, keep_faces: np.ndarray, name: str, kind: str) -> PartialShape:
+    """The largest clean piece of ``mesh`` made of the faces ``keep_faces`` selects.
+
+    Removing faces from a manifold surface can leave bow-tie vertices (two fans of kept
+    faces meeting at one vertex) and several pieces. Faces at bow-tie vertices are dropped
+    until none is left, then the largest piece (by area) is kept, so the result passes the
+    loader's validation: connected, manifold, no unreferenced vertex.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        A closed or open manifold mesh (V vertices, F faces).
+    keep_faces : np.ndarray, shape (F,), bool
+    name : str
+        Name of the part.
+    kind : str
+
+    Returns
+    -------
+    PartialShape
+
+    """
+    faces = mesh.faces[np.asarray(keep_faces, dtype=bool)]
+    while True:
+        faces = _without_bowtie_faces(faces)
+        faces = _largest_piece(faces, mesh.verts)
+        if len(faces) == 0 or not _bowtie_vertices(faces).size:
+            break
+    if len(faces) == 0:
+        raise ValueError(f"{mesh.name}: the cut keeps no face")
+    to_original, local = np.unique(faces, return_inverse=True)
+    part = Mesh(mesh.verts[to_original], local.reshape(-1, 3), name)
+    return PartialShape(part, to_original.astype(np.int64), part.area / mesh.area, kind)
+
+
+def _bowtie_vertices(faces: np.ndarray) -> np.ndarray:
+    vertex, fan = vertex_fans(faces)
+    pairs = np.unique(np.stack([vertex, fan], axis=1), axis=0)
+    return np.flatnonzero(np.bincount(pairs[:, 0]) > 1)
+
+
+def _without_bowtie_faces(faces: np.ndarray) -> np.ndarray:
+    while len(faces):
+        bad = _bowtie_vertices(faces)
+        if not bad.size:
+            break
+        faces = faces[~np.isin(faces, bad).any(axis=1)]
+    return faces
+
+
+def _largest_piece(faces: np.ndarray, verts: np.ndarray) -> np.ndarray:
+    """Faces of the edge-connected piece of largest area."""
+    if len(faces) == 0:
+        return faces
+    n = int(faces.max()) + 1
+    edges = face_edges(faces).reshape(-1, 2)
+    graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    labels = connected_components(graph, directed=False)[1]
+    face_label = labels[faces[:, 0]]
+    areas = np.linalg.norm(
+        np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]), axis=1
+    )
+    return faces[face_label == np.argmax(np.bincount(face_label, weights=areas))]
+
+
+def _area_quantile(values: np.ndarray, areas: np.ndarray, fraction: float) -> float:
+    """The value below which faces of ``fraction`` of the total area lie."""
+    order = np.argsort(values)
+    cumulative = np.cumsum(areas[order]) / areas.sum()
+    return float(values[order][min(np.searchsorted(cumulative, fraction), len(order) - 1)])
+
+
+def plane_cut(mesh: Mesh, normal: np.ndarray, keep: float, name: str) -> PartialShape:
+    """The part of ``mesh`` below a plane of normal ``normal`` holding ``keep`` of its area.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    normal : np.ndarray, shape (3,)
+        Faces whose centroids lie furthest along it are cut away.
+    keep : float
+        Area fraction to keep before the clean-up of :func:`kept_part`, in (0, 1).
+
+    """
+    height = mesh.verts[mesh.faces].mean(axis=1) @ np.asarray(normal, dtype=float)
+    level = _area_quantile(height, mesh.face_areas, keep)
+    return kept_part(mesh, height <= level, name, "plane")
+
+
+def holes_cut(mesh: Mesh, centres: np.ndarray, keep: float, name: str) -> PartialShape:
+    """``mesh`` with geodesic holes around ``centres`` that remove ``1 - keep`` of its area.
+
+    Every hole has the same radius (graph distance along edges), chosen so that the faces
+    left hold ``keep`` of the area.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    centres : np.ndarray, shape (H,), int
+        Vertices at the holes' centres.
+    keep : float
+        Area fraction to keep, in (0, 1).
+
+    """
+    distance = dijkstra(mesh.edge_graph(), indices=np.asarray(centres), min_only=True)
+    face_distance = distance[mesh.faces].min(axis=1)
+    level = _area_quantile(-face_distance, mesh.face_areas, keep)
+    return kept_part(mesh, -face_distance <= level, name, "holes")
+
+
+def view_cut(mesh: Mesh, direction: np.ndarray, name: str) -> PartialShape:
+    """The part of ``mesh`` one orthographic camera looking along ``direction`` sees.
+
+    A face is seen when it faces the camera and no other face lies in front of its centroid.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Consistently (outward) oriented.
+    direction : np.ndarray, shape (3,)
+        Viewing direction (from the camera into the scene).
+
+    """
+    from spidermatch.plot import occluded
+
+    forward = np.asarray(direction, dtype=float)
+    forward = forward / np.linalg.norm(forward)
+    helper = np.eye(3)[np.argmin(np.abs(forward))]
+    right = np.cross(forward, helper)
+    right /= np.linalg.norm(right)
+    frame = np.stack([right, np.cross(forward, right), -forward])  # camera z towards the camera
+    camera = (mesh.verts - mesh.verts.mean(axis=0)) @ frame.T
+    a, b, c = (mesh.verts[mesh.faces[:, k]] for k in range(3))
+    facing = np.cross(b - a, c - a) @ forward < 0
+    centroids = camera[mesh.faces].mean(axis=1)
+    tolerance = 1e-3 * float(np.sqrt(mesh.area))
+    seen = facing.copy()
+    seen[facing] = ~occluded(centroids[facing], camera, mesh.faces, tolerance)
+    return kept_part(mesh, seen, name, "view")
+
+
+def random_cut(
+    mesh: Mesh,
+    kind: str,
+    rng: np.random.Generator,
+    keep_range: tuple[float, float] = (0.3, 0.7),
+    name: str | None = None,
+    attempts: int = 20,
+) -> PartialShape:
+    """A random partial copy of ``mesh`` of the given kind keeping an area fraction in ``keep_range``.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    kind : str
+        "plane" (a random direction, the kept fraction drawn from ``keep_range``), "holes"
+        (one to three holes at random vertices) or "view" (a camera from a random direction).
+    rng : np.random.Generator
+    keep_range : (float, float)
+        Accepted kept-area fractions; a draw outside (e.g. a single view that sees little)
+        is drawn again, up to ``attempts`` times.
+
+    Raises
+    ------
+    ValueError
+        An unknown kind, or no draw within ``keep_range`` after ``attempts`` tries.
+
+    """
+    if kind not in CUT_KINDS:
+        raise ValueError(f"cut kind {kind!r}: choose from {', '.join(CUT_KINDS)}")
+    name = name or f"{mesh.name}-{kind}"
+    low, high = keep_range
+    for _ in range(attempts):
+        if kind == "plane":
+            part = plane_cut(mesh, _random_direction(rng), rng.uniform(low, high), name)
+        elif kind == "holes":
+            centres = rng.choice(mesh.n_verts, size=int(rng.integers(1, 4)), replace=False)
+            part = holes_cut(mesh, centres, rng.uniform(low, high), name)
+        else:
+            part = view_cut(mesh, _random_direction(rng), name)
+        if low <= part.kept_area <= high:
+            return part
+    raise ValueError(f"{mesh.name}: no {kind} cut kept between {low:.0%} and {high:.0%} of the area")
+
+
+def _random_direction(rng: np.random.Generator) -> np.ndarray:
+    vector = rng.normal(size=3)
+    return vector / np.linalg.norm(vector)
