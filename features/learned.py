@@ -279,6 +279,37 @@ class LearnedExtractor:
         network = self.adapt(mesh_x, mesh_y)
         return self._features(network, mesh_x), self._features(network, mesh_y)
 
+    def part_features(self, part: Mesh, whole: Mesh) -> tuple[np.ndarray, np.ndarray]:
+        """Descriptors of a partial source and of the whole target it is a part of.
+
+        The part is measured in the whole's unit of length (both meshes are assumed to share
+        one unit, as the partial mode does) and, with an orientation search, presented in
+        the orientation whose features find the closest partners on the whole
+        (:meth:`features.orientation.OrientationSearch.best_for_part`). Test-time adaptation
+        is skipped: its loss assumes two whole shapes.
+
+        Returns
+        -------
+        feat_part : np.ndarray, shape (V_part, C_out)
+        feat_whole : np.ndarray, shape (V_whole, C_out)
+
+        """
+        self._check_size(part, whole)
+        if self.adapt_steps:
+            logger.warning("%s: test-time adaptation skipped for a partial source", part.name)
+        feat_whole = self._features(self.network, whole)
+        shape = prepare_shape(part, self.config, use_cache=self.use_cache, scale_area=whole.area)
+        if self.orientation is not None:
+            probe = probe_input(part, self.config, self.train_faces, self.use_cache, scale_area=whole.area)
+            chosen = self.orientation.best_for_part(self.network, probe, torch.from_numpy(feat_whole).float())
+            self.orientations[part.name] = chosen
+            if chosen.degrees != 0.0:
+                logger.info("%s: input %s (orientation search for a part)", part.name, chosen.describe())
+            shape = rotated_input(shape, chosen.rotation)
+        with torch.no_grad():
+            feat_part = self.network(shape.features, shape.ops)
+        return normalise_rows(feat_part.double().numpy()), feat_whole
+
     def adapt(self, mesh_x: Mesh, mesh_y: Mesh) -> DiffusionNet:
         """A copy of the network fine-tuned for ``adapt_steps`` Adam steps on this pair."""
         inputs = [self._adaptation_input(mesh) for mesh in (mesh_x, mesh_y)]

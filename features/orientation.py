@@ -168,6 +168,31 @@ class OrientationSearch:
                 found.append((best, network(presented.features, presented.ops)))
             return found
 
+    def best_for_part(self, network: DiffusionNet, part: ShapeInput, whole: torch.Tensor) -> Orientation:
+        """The orientation of a partial shape whose features find the closest partners on its whole.
+
+        The unsupervised loss of :meth:`search` compares two whole shapes; a part is judged
+        instead by the mean cosine similarity of each of its vertices' features with the
+        nearest feature of the whole (no labels).
+
+        Parameters
+        ----------
+        network : DiffusionNet
+        part : ShapeInput
+            The partial shape (V_p vertices), at the training resolution.
+        whole : torch.Tensor, shape (V, C_out)
+            Features of the whole, L2-normalised rows.
+        """
+        best = (-math.inf, UNTURNED)
+        with torch.no_grad():
+            for candidate in self.candidates(part):
+                out = network(rotated_input(part, candidate.rotation).features, part.ops)
+                out = torch.nn.functional.normalize(out, dim=-1)
+                score = (out @ whole.T).max(dim=1).values.mean().item()
+                if score > best[0]:
+                    best = (score, candidate)
+        return best[1]
+
     def _best(
         self, network: DiffusionNet, reference: torch.Tensor, shape: ShapeInput
     ) -> tuple[Orientation, torch.Tensor]:
@@ -201,13 +226,18 @@ def oriented_outputs(
         return [(UNTURNED, network(shape.features, shape.ops)) for shape in shapes]
 
 
-def probe_input(mesh: Mesh, model: ModelConfig, faces: int | None, use_cache: bool = True) -> ShapeInput:
-    """Network input of ``mesh`` decimated to about ``faces`` faces (as it is if it has fewer or None)."""
+def probe_input(
+    mesh: Mesh, model: ModelConfig, faces: int | None, use_cache: bool = True, scale_area: float | None = None
+) -> ShapeInput:
+    """Network input of ``mesh`` decimated to about ``faces`` faces (as it is if it has fewer or None).
+
+    ``scale_area`` sets the unit of length (see :func:`features.diffusion_net.input_features`).
+    """
     if faces is not None and mesh.n_faces > faces:
         from spidermatch.remesh import decimate
 
         mesh = decimate(mesh, int(faces)).mesh
-    return prepare_shape(mesh, model, use_cache=use_cache)
+    return prepare_shape(mesh, model, use_cache=use_cache, scale_area=scale_area)
 
 
 def searches_orientation(model: ModelConfig, turns: int) -> bool:

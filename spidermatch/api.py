@@ -26,6 +26,7 @@ from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
 from spidermatch.feature_transfer import pair_features as capped_pair_features
 from spidermatch.mesh import Mesh, MeshError, make_mesh
 from spidermatch.model_size import check_meshes_fit
+from spidermatch.partial import PairKind, pair_kind
 from spidermatch.validate import check_settings, feature_cap_problem, raise_problems
 
 logger = logging.getLogger(__name__)
@@ -167,7 +168,11 @@ def _from_arrays(verts, faces, name: str) -> Mesh:
 
 
 def pair_features(
-    features, source: Mesh, target: Mesh, max_vertices: int | None = MAX_FEATURE_VERTICES
+    features,
+    source: Mesh,
+    target: Mesh,
+    max_vertices: int | None = MAX_FEATURE_VERTICES,
+    partial: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, str]:
     """Features of both meshes (centred) and their name, from ``features`` as :func:`match` takes it.
 
@@ -180,6 +185,9 @@ def pair_features(
     max_vertices : int, optional
         A mesh with more vertices gets an extractor's features on a decimated copy of about
         this many, carried to all its vertices (:mod:`spidermatch.feature_transfer`; None: no cap).
+    partial : bool
+        The source is a part of the target (an extractor with ``part_features`` measures it in
+        the target's unit).
 
     Returns
     -------
@@ -198,7 +206,7 @@ def pair_features(
             f"or a pair of (V, D) arrays, got {type(features).__name__}"
         )
     name = str(getattr(features, "name", type(features).__name__))
-    feat_x, feat_y = capped_pair_features(features, source, target, max_vertices)
+    feat_x, feat_y = capped_pair_features(features, source, target, max_vertices, partial=partial)
     return feat_x, feat_y, name
 
 
@@ -227,6 +235,7 @@ def match(
     settings=None,
     strict: bool = True,
     features_max_vertices: int | None = MAX_FEATURE_VERTICES,
+    partial: str = "auto",
 ) -> Matching:
     """Match ``source`` to ``target`` with SpiderMatch and return a certified :class:`Matching`.
 
@@ -257,6 +266,10 @@ def match(
         A mesh with more vertices gets an extractor's features on a decimated copy of about
         this many vertices, carried to all of them (None or 0: no cap; precomputed arrays
         are used as given).
+    partial : str
+        "auto": a source with boundary loops the target lacks and a smaller area is matched
+        as a part of the target (:func:`spidermatch.partial.pair_kind`; the reason is
+        logged and kept in ``details.pair``); "off": always as two whole shapes.
 
     Returns
     -------
@@ -275,17 +288,40 @@ def match(
     source_mesh, target_mesh = as_mesh(source, "source"), as_mesh(target, "target")
     dense_planned = settings is None or getattr(settings, "dense", None) is not None
     check_meshes_fit((source_mesh.n_verts, target_mesh.n_verts), dense_planned)
+    kind = recognised_pair(source_mesh, target_mesh, partial)
     started = time.perf_counter()
-    feat_x, feat_y, name = pair_features(features, source_mesh, target_mesh, features_max_vertices or None)
+    feat_x, feat_y, name = pair_features(
+        features, source_mesh, target_mesh, features_max_vertices or None, kind.mode == "partial"
+    )
     feature_time = time.perf_counter() - started
     if name == "wks":
         logger.info("features: WKS. %s", BETTER_FEATURES_HINT)
     run_settings = _settings(settings, name, resolution, time_limit, mip_rel_gap, strategy)
+    run_settings = dataclasses.replace(run_settings, partial=kind.mode == "partial")
     check_settings(run_settings, solver_prefix="")  # messages name the keywords: time_limit=, not solver.
     result = run_pipeline(source_mesh, target_mesh, feat_x, feat_y, run_settings)
+    result.pair = kind
     if strict:
         result.raise_for_status()
     return _matching(result, name, run_settings.resolution, {"features": feature_time, **result.timings})
+
+
+def recognised_pair(source: Mesh, target: Mesh, partial: str) -> PairKind:
+    """How the API matches a pair: a part of its target (``partial="auto"``) or two whole shapes.
+
+    Meshes of different topology that no partial mode explains are matched as two whole
+    shapes, with the reason as a warning (the API has never refused them).
+    """
+    if partial not in ("auto", "off"):
+        raise ValueError(f"partial={partial!r}: choose 'auto' or 'off'")
+    try:
+        kind = pair_kind(source, target, partial=partial == "auto")
+    except MeshError as error:
+        logger.warning("%s (matched as two whole shapes)", error)
+        return PairKind("whole", str(error), source.area / target.area)
+    if kind.mode == "partial":
+        logger.info("partial mode: %s", kind.reason)
+    return kind
 
 
 def _settings(base, feature_name: str, resolution, time_limit, mip_rel_gap, strategy):

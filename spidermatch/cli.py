@@ -30,6 +30,7 @@ from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, mesh_features, pa
 from spidermatch.io import load_mesh, read_vts
 from spidermatch.mesh import Mesh, MeshError
 from spidermatch.model_size import check_meshes_fit
+from spidermatch.partial import PairKind, overlap_summary, pair_kind
 from spidermatch.pipeline import MatchError, MatchResult, MatchSettings, add_dense_map, match
 from spidermatch.solve.highs import SolverOptions
 from spidermatch.solve.strategies import strategy_for
@@ -37,7 +38,6 @@ from spidermatch.validate import (
     OptionError,
     check_ground_truth,
     check_options,
-    check_same_topology,
     coarseness_warnings,
 )
 
@@ -57,6 +57,7 @@ class MatchInputs:
     target_corr: np.ndarray | None
     resolution: int
     description: str
+    partial: bool = False
 
 
 def load_inputs(cfg) -> MatchInputs:
@@ -186,7 +187,9 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
     if name == "wks":
         logger.info("features: WKS (no trained checkpoint given). %s", BETTER_FEATURES_HINT)
     capped = {}
-    feat_x, feat_y = pair_features(extractor, inputs.source, inputs.target, feature_cap(cfg), capped)
+    feat_x, feat_y = pair_features(
+        extractor, inputs.source, inputs.target, feature_cap(cfg), capped, inputs.partial
+    )
     return feat_x, feat_y, name, feature_details(extractor, capped)
 
 
@@ -358,27 +361,48 @@ def _start_run(output_dir: Path, result_path: Path | None, report: dict) -> None
         write_atomic(result_path, json.dumps(report, indent=2) + "\n")
 
 
-def check_inputs(cfg, inputs: MatchInputs, report: dict) -> None:
+def check_inputs(cfg, inputs: MatchInputs, report: dict) -> MatchInputs:
     """Pair checks before any work: topology, meshes far below the resolution, memory for their size.
 
     What was repaired on reading the meshes (re-oriented faces, split polygons) joins the
-    report's warnings.
+    report's warnings. Returns ``inputs``, marked ``partial`` when the source is a part of
+    the target (``report["pair"]`` says how the pair is matched and why).
     """
     repairs = [*inputs.source.notes, *inputs.target.notes]
     if repairs:
         report.setdefault("warnings", []).extend(repairs)
-    if cfg.get("allow_topology_mismatch", False):
-        try:
-            check_same_topology(inputs.source, inputs.target)
-        except MeshError as error:
-            logger.warning("%s (allow_topology_mismatch=true: matching anyway)", error)
-            report.setdefault("warnings", []).append(str(error))
-    else:
-        check_same_topology(inputs.source, inputs.target)
+    kind = checked_pair_kind(cfg, inputs, report)
+    report["pair"] = {"mode": kind.mode, "reason": kind.reason, "area_ratio": round(kind.area_ratio, 4)}
+    if kind.mode == "partial":
+        logger.info("partial mode: %s", kind.reason)
     warnings = coarseness_warnings((inputs.source, inputs.target), inputs.resolution)
     if warnings:
         report.setdefault("warnings", []).extend(warnings)
     check_meshes_fit((inputs.source.n_verts, inputs.target.n_verts), dense_settings(cfg) is not None)
+    return dataclasses.replace(inputs, partial=kind.mode == "partial")
+
+
+PARTIAL_OPTIONS = ("auto", "off")
+
+
+def checked_pair_kind(cfg, inputs: MatchInputs, report: dict) -> PairKind:
+    """How the pair is matched (``partial=auto|off``); a refused pair raises, unless forced.
+
+    ``allow_topology_mismatch=true`` matches a refused pair as two whole shapes, with the
+    refusal as a warning.
+    """
+    option = cfg.get("partial", "auto")
+    if option not in PARTIAL_OPTIONS:
+        raise OptionError(f"partial={option!r}: choose from {', '.join(PARTIAL_OPTIONS)}")
+    try:
+        return pair_kind(inputs.source, inputs.target, partial=option == "auto")
+    except MeshError as error:
+        if not cfg.get("allow_topology_mismatch", False):
+            raise
+        logger.warning("%s (allow_topology_mismatch=true: matching anyway)", error)
+        report.setdefault("warnings", []).append(str(error))
+        ratio = inputs.source.area / inputs.target.area
+        return PairKind("whole", "allow_topology_mismatch=true: matched as two whole shapes", ratio)
 
 
 def resolution_text(inputs: MatchInputs) -> str:
@@ -394,7 +418,7 @@ def resolution_text(inputs: MatchInputs) -> str:
 def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -> int:
     inputs = get_inputs()
     report.update(input=inputs.description, resolution=inputs.resolution)
-    check_inputs(cfg, inputs, report)
+    inputs = check_inputs(cfg, inputs, report)
     logger.info("matching %s at %s", inputs.description, resolution_text(inputs))
     start = time.perf_counter()
     feat_x, feat_y, feature_name, details = get_features(inputs)
@@ -403,7 +427,9 @@ def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -
     if details:
         report["feature_inputs"] = details
     logger.info("features (%s) done in %.2f s", feature_name, feature_time)
-    settings = settings_from_config(cfg, inputs.resolution, feature_name)
+    settings = dataclasses.replace(
+        settings_from_config(cfg, inputs.resolution, feature_name), partial=inputs.partial
+    )
     logger.info("solving strategy: %s", settings.strategy)
     result = match(inputs.source, inputs.target, feat_x, feat_y, dataclasses.replace(settings, dense=None))
     report.update(result_summary(result, inputs, feature_name))
@@ -424,7 +450,9 @@ def _run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -
     stage = "dense"
     try:
         if settings.dense is not None:
-            add_dense_map(result, inputs.source, inputs.target, (feat_x, feat_y), settings.dense)
+            add_dense_map(
+                result, inputs.source, inputs.target, (feat_x, feat_y), settings.dense, settings.partial
+            )
             report["timings_s"]["dense"] = round(result.timings["dense"], 3)
             stage = "dense outputs"
             dense_errors = _write_dense(output_dir, result, inputs, (feat_x, feat_y), report)
@@ -508,6 +536,11 @@ def _write_dense(
         result.dense, inputs.source, inputs.target, *features, inputs.source_corr, inputs.target_corr
     )
     report["dense"] = figures
+    if result.dense.covered is not None:
+        report["overlap"] = overlap_summary(inputs.target, result.dense.covered)
+        logger.info(
+            "partial map: covers %.0f %% of the target's area", 100 * report["overlap"]["target_covered_area"]
+        )
     if errors is not None:
         with guard.atomic_path(output_dir / "dense_geodesic_errors.npy") as tmp:
             np.save(tmp, errors)
@@ -567,9 +600,13 @@ class FeatureMemo:
 
     def pair(self, inputs: MatchInputs, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray, str, dict]:
         """Features of a pair and how they were made; adaptive extractors are never cached."""
-        if hasattr(self.extractor, "pair_features"):
+        if (
+            hasattr(self.extractor, "pair_features") or inputs.partial
+        ):  # a part's features depend on its whole
             capped = {}
-            features = pair_features(self.extractor, inputs.source, inputs.target, self.max_vertices, capped)
+            features = pair_features(
+                self.extractor, inputs.source, inputs.target, self.max_vertices, capped, inputs.partial
+            )
             return *features, self.name, feature_details(self.extractor, capped)
         (feat_x, details_x), (feat_y, details_y) = (
             self.of(names[0], inputs.source),

@@ -172,6 +172,9 @@ class DenseMap:
         Barycentric coordinates of each image point in ``face`` (rows sum to one).
     method : str
         The method that made it.
+    covered : np.ndarray, shape (V_Y,), bool, or None
+        For a partial source: the target vertices the map covers (the overlap); None for
+        two whole shapes, where the map covers the whole target.
 
     """
 
@@ -179,6 +182,7 @@ class DenseMap:
     face: np.ndarray
     bary: np.ndarray
     method: str
+    covered: np.ndarray | None = None
 
     def points(self, target: Mesh) -> np.ndarray:
         """3D image points on ``target``, shape (V_X, 3)."""

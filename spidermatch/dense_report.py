@@ -42,14 +42,23 @@ def write_dense_outputs(output_dir: Path, dense: DenseMap) -> tuple[Path, Path]:
     with atomic_path(csv_path) as tmp:
         np.savetxt(tmp, rows, fmt="%d", delimiter=",", header="source_vertex,target_vertex", comments="")
     with atomic_path(npz_path) as tmp:
-        np.savez(tmp, vertex=dense.vertex, face=dense.face, bary=dense.bary, method=np.array(dense.method))
+        overlap = {} if dense.covered is None else {"target_covered": dense.covered}
+        np.savez(
+            tmp,
+            vertex=dense.vertex,
+            face=dense.face,
+            bary=dense.bary,
+            method=np.array(dense.method),
+            **overlap,
+        )
     return csv_path, npz_path
 
 
 def read_dense_map(path: str | os.PathLike) -> DenseMap:
     """Load a ``dense_map.npz`` written by :func:`write_dense_outputs`."""
     with np.load(path) as data:
-        return DenseMap(data["vertex"], data["face"], data["bary"], str(data["method"]))
+        covered = data["target_covered"] if "target_covered" in data else None
+        return DenseMap(data["vertex"], data["face"], data["bary"], str(data["method"]), covered)
 
 
 NEAREST_NEIGHBOUR_PRODUCTS = 8e10

@@ -39,6 +39,7 @@ def pair_features(
     target: Mesh,
     max_vertices: int | None = MAX_FEATURE_VERTICES,
     record: dict | None = None,
+    partial: bool = False,
 ):
     """Features of both meshes, centred, each computed on at most ``max_vertices`` vertices.
 
@@ -52,6 +53,9 @@ def pair_features(
         The cap (None or 0: every mesh at its own resolution).
     record : dict, optional
         Receives, for each capped mesh, its name and the copy's vertex count.
+    partial : bool
+        The source is a part of the target: an extractor with ``part_features(part, whole)``
+        is given both meshes at once (the part measured in the whole's unit).
 
     Returns
     -------
@@ -59,11 +63,13 @@ def pair_features(
     target_features : np.ndarray, shape (V_tgt, D)
 
     """
-    if not hasattr(extractor, "pair_features"):
+    method = "part_features" if partial else "pair_features"
+    if not hasattr(extractor, method):
         return tuple(mesh_features(extractor, mesh, max_vertices, record) for mesh in (source, target))
     centred = [mesh.centred() for mesh in (source, target)]
     capped = [capped_mesh(mesh, max_vertices, record) for mesh in centred]
-    computed = extractor.pair_features(*(mesh if low is None else low for low, mesh in zip(capped, centred)))
+    shown = [mesh if low is None else low for low, mesh in zip(capped, centred)]
+    computed = getattr(extractor, method)(*shown)
     return tuple(on_full_mesh(features, low, mesh) for features, low, mesh in zip(computed, capped, centred))
 
 

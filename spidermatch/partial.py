@@ -16,8 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
 
-from spidermatch.mesh import Mesh, face_edges, vertex_fans
+from spidermatch.mesh import Mesh, MeshError, face_edges, vertex_fans
 
 logger = logging.getLogger(__name__)
 
@@ -236,3 +237,145 @@ def random_cut(
 def _random_direction(rng: np.random.Generator) -> np.ndarray:
     vector = rng.normal(size=3)
     return vector / np.linalg.norm(vector)
+
+
+PAIR_MODES = ("whole", "partial")
+"""How a pair is matched: two whole surfaces, or a part of the target (the source) to the target."""
+
+
+@dataclass(frozen=True)
+class PairKind:
+    """What a pair of meshes is and how it is matched.
+
+    Attributes
+    ----------
+    mode : str
+        "whole" (both surfaces complete, or of the same topology) or "partial" (the source
+        is a part of the target: it is measured in the target's unit of length, and the
+        target keeps a region without partner).
+    reason : str
+        Why, in one sentence for the log and ``result.json``.
+    area_ratio : float
+        Source area over target area, in the meshes' own units.
+
+    """
+
+    mode: str
+    reason: str
+    area_ratio: float
+
+
+def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
+    """Recognise a partial source: boundary loops the target lacks, a smaller area, no more genus.
+
+    Parameters
+    ----------
+    source, target : Mesh
+        Validated (connected, manifold) meshes.
+    partial : bool
+        Recognise partial sources; False refuses them as any other difference in topology.
+
+    Returns
+    -------
+    PairKind
+
+    Raises
+    ------
+    MeshError
+        The meshes differ in topology in a way no partial mode explains (another genus, a
+        target with more boundary loops than its source, a "part" larger than its whole),
+        or ``partial`` is False and the source is partial; the message names both meshes
+        and what to do.
+
+    """
+    from spidermatch.validate import topology
+
+    top_x, top_y = topology(source), topology(target)
+    ratio = source.area / target.area
+    if (top_x.genus, top_x.boundaries) == (top_y.genus, top_y.boundaries):
+        return PairKind("whole", f"both meshes are {top_x}", ratio)
+    refusal = (
+        f"the meshes differ in topology: {source.name} has {top_x}, {target.name} has {top_y}. "
+        "SpiderMatch maps a curve through all of the source onto the target"
+    )
+    if top_x.boundaries > top_y.boundaries and top_x.genus <= top_y.genus:
+        if not partial:
+            raise MeshError(
+                f"{refusal}; the source looks like a part of the target: set partial=auto to match it"
+            )
+        if ratio >= 1.0:
+            raise MeshError(
+                f"{refusal}. The source has boundary loops the target lacks, like a part of it, but its "
+                f"area is {ratio:.3g} times the target's: a part is matched in its whole's unit of length, "
+                "so give both meshes in the same unit"
+            )
+        reason = (
+            f"{source.name} has {top_x} and {ratio:.0%} of the area of {target.name} ({top_y}): "
+            "matched as a part of it"
+        )
+        return PairKind("partial", reason, ratio)
+    if top_y.boundaries > top_x.boundaries and top_y.genus <= top_x.genus:
+        raise MeshError(
+            f"{refusal}; the target looks like a part of the source. The partial mode maps a part onto "
+            "its whole: swap source and target"
+        )
+    raise MeshError(
+        f"{refusal}; across different genus no consistent matching may exist and the solver can "
+        "search for hours. Repair the meshes, or set allow_topology_mismatch=true to try anyway"
+    )
+
+
+def covered_target(target: Mesh, image_points: np.ndarray, source_edge: float) -> np.ndarray:
+    """Target vertices the image of a part covers.
+
+    A vertex is covered when an image point lies within half an edge of it: half the longer
+    of its own mean edge and the source's mean edge, so that neither a coarse source nor a
+    coarse target leaves gaps, and the vertices one edge outside the image stay out. A
+    vertex most of whose neighbours are covered is covered too: that fills the single
+    vertices a many-to-one map leaves unhit inside the region, without growing its rim.
+
+    Parameters
+    ----------
+    target : Mesh
+        V_Y vertices.
+    image_points : np.ndarray, shape (V_X, 3)
+        Image of every source vertex on the target (the dense map's points).
+    source_edge : float
+        Mean edge length of the source, in the target's coordinates.
+
+    Returns
+    -------
+    np.ndarray, shape (V_Y,), bool
+    """
+    edges = target.edges
+    lengths = np.linalg.norm(target.verts[edges[:, 0]] - target.verts[edges[:, 1]], axis=1)
+    ends = edges.reshape(-1)
+    degree = np.bincount(ends, minlength=target.n_verts)
+    local_edge = np.bincount(ends, weights=np.repeat(lengths, 2), minlength=target.n_verts) / np.maximum(
+        degree, 1
+    )
+    radius = 0.5 * np.maximum(local_edge, source_edge)
+    distance, _ = cKDTree(np.asarray(image_points, dtype=float)).query(
+        target.verts, distance_upper_bound=radius.max()
+    )
+    covered = distance <= radius
+    adjacency = sp.coo_matrix(
+        (np.ones(2 * len(edges)), (ends, edges[:, ::-1].reshape(-1))), shape=(target.n_verts,) * 2
+    ).tocsr()
+    return covered | (adjacency @ covered.astype(float) > 0.5 * degree)
+
+
+def mean_edge_length(mesh: Mesh) -> float:
+    """Mean length of the mesh's edges."""
+    edges = mesh.edges
+    return float(np.linalg.norm(mesh.verts[edges[:, 0]] - mesh.verts[edges[:, 1]], axis=1).mean())
+
+
+def overlap_summary(target: Mesh, covered: np.ndarray) -> dict:
+    """Share of the target's vertices and area the map covers, for ``result.json``."""
+    vertex_area = np.zeros(target.n_verts)
+    np.add.at(vertex_area, target.faces.reshape(-1), np.repeat(target.face_areas / 3.0, 3))
+    return {
+        "target_covered_vertices": int(covered.sum()),
+        "target_covered_area": round(float(vertex_area[covered].sum() / vertex_area.sum()), 4),
+    }

@@ -33,6 +33,7 @@ from spidermatch.ilp import FAMILIES, IlpModel
 from spidermatch.lazy_model import LazyModel
 from spidermatch.mesh import Mesh
 from spidermatch.model_size import check_model_fits
+from spidermatch.partial import PairKind, covered_target, mean_edge_length
 from spidermatch.product_graph import ProductGraph, build_product_graph
 from spidermatch.quality import assess
 from spidermatch.remesh import Decimated, decimate
@@ -95,6 +96,9 @@ class MatchSettings:
     dense : DenseSettings or None
         How to extend the certified map to every full-resolution source vertex
         (:mod:`spidermatch.dense`); None: no dense map.
+    partial : bool
+        The source is a part of the target (:func:`spidermatch.partial.pair_kind`): its
+        lengths are measured in the target's unit (sqrt of the target's area), not its own.
 
     """
 
@@ -110,6 +114,7 @@ class MatchSettings:
     strategy: str = "rcfix"
     isolate_solver: bool = True
     dense: DenseSettings | None = field(default_factory=DenseSettings)
+    partial: bool = False
 
 
 @dataclass(eq=False)
@@ -137,6 +142,8 @@ class MatchResult:
         Image of every full-resolution source vertex (None if turned off or unsolved).
     quality : dict or None
         The verdict on a checked matching without ground truth (:func:`spidermatch.quality.assess`).
+    pair : PairKind or None
+        How the pair was recognised, when the caller recognised it (the CLI and the API do).
 
     """
 
@@ -152,6 +159,7 @@ class MatchResult:
     model_size: dict = field(default_factory=dict)
     dense: DenseMap | None = None
     quality: dict | None = None
+    pair: PairKind | None = None
 
     @property
     def dense_map(self) -> np.ndarray | None:
@@ -218,8 +226,12 @@ def prepare(
     check_model_fits(
         (source.n_faces, target.n_faces), settings.resolution, settings.strategy, settings.target_augmented
     )
+    source_scale = length_scale(target if settings.partial else source)
     logger.info(
-        "lengths in each mesh's sqrt(area): source area %.6g, target area %.6g", source.area, target.area
+        "lengths in %s: source area %.6g, target area %.6g",
+        "the target's sqrt(area) (partial source)" if settings.partial else "each mesh's sqrt(area)",
+        source.area,
+        target.area,
     )
     with _stage(timings, "decimate"):
         low_x = decimate(source.centred(), settings.resolution, settings.decimation)
@@ -239,7 +251,7 @@ def prepare(
         lazy = LazyModel(
             graph,
             curve,
-            low_x.mesh.verts * length_scale(source),
+            low_x.mesh.verts * source_scale,
             low_y.mesh.verts * length_scale(target),
             vertex_costs,
             tuple(settings.constraints),
@@ -340,7 +352,9 @@ def match(
         log = logger.warning if result.quality["verdict"] == "suspect" else logger.info
         log("quality: %s%s", result.quality["verdict"], "".join(f"; {r}" for r in result.quality["reasons"]))
     if settings.dense is not None:
-        add_dense_map(result, source, target, (source_features, target_features), settings.dense)
+        add_dense_map(
+            result, source, target, (source_features, target_features), settings.dense, settings.partial
+        )
     return result
 
 
@@ -372,9 +386,18 @@ def within_optimal_gap(solved: SolveResult) -> SolveResult:
 
 
 def add_dense_map(
-    result: MatchResult, source: Mesh, target: Mesh, features: tuple, settings: DenseSettings
+    result: MatchResult,
+    source: Mesh,
+    target: Mesh,
+    features: tuple,
+    settings: DenseSettings,
+    partial: bool = False,
 ) -> None:
     """Set ``result.dense``: the image of every full-resolution source vertex (a checked matching only).
+
+    For a partial source the map also says which target vertices it covers (``covered``):
+    those within half an edge of an image point, or surrounded by covered ones
+    (:func:`spidermatch.partial.covered_target`).
 
     Parameters
     ----------
@@ -384,6 +407,8 @@ def add_dense_map(
         The full-resolution meshes the match was run on.
     features : (np.ndarray (V_X, D), np.ndarray (V_Y, D))
     settings : DenseSettings
+    partial : bool
+        The source is a part of the target.
 
     """
     if result.low_map is None or result.check is None or not result.check.ok:
@@ -398,6 +423,10 @@ def add_dense_map(
             *features,
             settings,
         )
+        if partial:
+            whole = target.centred()
+            covered = covered_target(whole, result.dense.points(whole), mean_edge_length(source))
+            result.dense = dataclasses.replace(result.dense, covered=covered)
 
 
 def _read_solution(result: MatchResult, families: tuple = FAMILIES) -> None:

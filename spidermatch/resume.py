@@ -79,6 +79,7 @@ def deciding_settings(config: dict, checkpoint: str | None) -> dict:
         "solver": solver,
         "allow_topology_mismatch": bool(config.get("allow_topology_mismatch", False)),
         **changed_cap,
+        **({"partial": config.get("partial")} if config.get("partial", "auto") != "auto" else {}),
     }
 
 

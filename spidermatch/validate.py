@@ -264,19 +264,6 @@ def topology(mesh: Mesh) -> Topology:
     return Topology(int(euler), int(loops), int((2 - euler - loops) // 2))
 
 
-def check_same_topology(source: Mesh, target: Mesh) -> tuple[Topology, Topology]:
-    """Refuse a pair of meshes of different topology (raise :class:`MeshError` naming both)."""
-    top_x, top_y = topology(source), topology(target)
-    if (top_x.genus, top_x.boundaries) != (top_y.genus, top_y.boundaries):
-        raise MeshError(
-            f"the meshes differ in topology: {source.name} has {top_x}, {target.name} has {top_y}. "
-            "SpiderMatch maps a curve through all of the source onto the target; across different "
-            "genus or boundaries no consistent matching may exist and the solver can search for hours. "
-            "Repair the meshes, or set allow_topology_mismatch=true to try anyway"
-        )
-    return top_x, top_y
-
-
 def check_ground_truth(source_corr, target_corr, source_name: str, target_name: str) -> None:
     """Ground-truth files of a pair must have the same number of points (row k corresponds)."""
     if source_corr is None or target_corr is None:

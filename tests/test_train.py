@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import math
 
 import numpy as np
@@ -277,7 +278,13 @@ def test_real_config_composes_and_runs(tmp_path):
         cfg = compose(config_name="train", overrides=overrides)
         faust = compose(config_name="train", overrides=["train/experiment=faust_r", "data.root=/nowhere"])
         unsup = compose(config_name="train", overrides=["train/experiment=faust_r_unsup", "data.root=/x"])
+        partial = compose(
+            config_name="train", overrides=["train/experiment=faust_r_unsup_partial", "data.root=/x"]
+        )
     faust_config, unsup_config = to_train_config(faust), to_train_config(unsup)
+    partial_config = to_train_config(partial)
+    assert partial_config.data.partial_copies == 6 and partial_config.loss.w_partial == 10.0
+    assert partial_config.model == unsup_config.model and partial_config.optim == unsup_config.optim
     assert faust_config.model.input == "wks"
     assert unsup_config.model.input == "wks_xyz" and unsup_config.model.in_channels == 131
     assert unsup_config.loss.w_sup == 0.0
@@ -292,7 +299,7 @@ def test_real_config_composes_and_runs(tmp_path):
         "2",
     ]
     losses = (tmp_path / "losses.csv").read_text().splitlines()
-    assert losses[0] == "step,loss,bij,orth,couple,sup,lr,seconds" and len(losses) == 3
+    assert losses[0] == "step,loss,bij,orth,couple,sup,partial,lr,seconds" and len(losses) == 3
     assert (tmp_path / "validation.png").stat().st_size > 0
     with pytest.raises(CheckpointError, match="missing.pt"):
         config = to_train_config(cfg)
@@ -321,3 +328,33 @@ def test_time_limit_stops_after_validating(tmp_path, shapes):
     result = run_training(config, tmp_path, shapes, None)
     assert result.step == 1 and not result.interrupted
     assert (tmp_path / "last.pt").is_file()
+
+
+def test_partial_augmentation_adds_the_cut_consistency_term(tmp_path):
+    from hydra import compose, initialize_config_module
+
+    from train.cli import to_train_config
+    from train.loop import train
+
+    overrides = [
+        "data.synthetic_shapes=3",
+        "data.synthetic_verts=400",
+        "data.partial_copies=2",
+        "loss.w_partial=1.0",
+        "model.width=16",
+        "model.n_blocks=1",
+        "model.out_channels=8",
+        "loss.n_fmap=12",
+        "run.n_steps=3",
+        "run.val_every=3",
+        "run.progress=false",
+    ]
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        cfg = compose(config_name="train", overrides=overrides)
+        without_copies = compose(config_name="train", overrides=["loss.w_partial=1.0"])
+    result = train(to_train_config(cfg), tmp_path)
+    assert result.step == 3
+    rows = list(csv.DictReader((tmp_path / "losses.csv").open()))
+    assert len(rows) == 3 and all(0 < float(row["partial"]) < 20 for row in rows)
+    with pytest.raises(ValueError, match="data.partial_copies"):
+        to_train_config(without_copies)

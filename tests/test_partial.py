@@ -1,0 +1,167 @@
+"""Partial shapes: cut copies with exact index maps, recognising a part, matching it in the partial mode."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from hydra import compose, initialize_config_module
+
+import spidermatch
+from spidermatch.cli import run_match
+from spidermatch.descriptors import WKSExtractor
+from spidermatch.io import load_mesh, save_mesh
+from spidermatch.mesh import Mesh, MeshError, make_mesh
+from spidermatch.partial import (
+    covered_target,
+    holes_cut,
+    mean_edge_length,
+    pair_kind,
+    plane_cut,
+    random_cut,
+    view_cut,
+)
+from spidermatch.synthetic import make_creature
+from spidermatch.validate import topology
+from train.losses import cut_consistency_loss
+
+
+@pytest.fixture(scope="module")
+def creature() -> Mesh:
+    return make_creature(n_verts=900, seed=3).mesh
+
+
+def _is_exact_part(part, whole: Mesh) -> None:
+    """The part's vertices are the whole's, and it passes the loader's validation."""
+    assert np.array_equal(part.mesh.verts, whole.verts[part.to_original])
+    make_mesh(part.mesh.verts, part.mesh.faces, "part")  # raises on a bow-tie, several pieces, ...
+    assert np.isclose(part.kept_area, part.mesh.area / whole.area)
+
+
+def test_a_plane_cut_keeps_the_asked_share_of_the_area_below_the_plane(creature):
+    part = plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.5, "lower half")
+    _is_exact_part(part, creature)
+    assert 0.35 <= part.kept_area <= 0.55  # the clean-up keeps only the largest piece
+    level = np.quantile(creature.verts[:, 1], 0.5)
+    assert part.mesh.verts[:, 1].min() < level - 0.1 * np.ptp(creature.verts[:, 1])
+    assert topology(part.mesh).boundaries >= 1
+
+
+def test_holes_open_boundary_loops_around_their_centres(creature):
+    farthest = int(np.argmax(np.linalg.norm(creature.verts - creature.verts[0], axis=1)))
+    centres = np.array([0, farthest])
+    part = holes_cut(creature, centres, 0.85, "two holes")
+    _is_exact_part(part, creature)
+    assert not np.isin(centres, part.to_original).any()
+    assert topology(part.mesh).boundaries == 2 and 0.8 <= part.kept_area <= 0.9
+
+
+def test_a_single_view_keeps_the_side_facing_the_camera(creature):
+    part = view_cut(creature, np.array([0.0, 0.0, -1.0]), "front view")
+    _is_exact_part(part, creature)
+    normals = np.cross(
+        *(part.mesh.verts[part.mesh.faces[:, k]] - part.mesh.verts[part.mesh.faces[:, 0]] for k in (1, 2))
+    )
+    assert (normals[:, 2] > 0).mean() > 0.95  # seen faces face the camera (+z)
+    assert 0.2 < part.kept_area < 0.6
+
+
+def test_random_cuts_stay_in_the_asked_range_and_repeat_with_their_seed(creature):
+    for kind in ("plane", "holes", "view"):
+        first = random_cut(creature, kind, np.random.default_rng(7), (0.3, 0.7))
+        again = random_cut(creature, kind, np.random.default_rng(7), (0.3, 0.7))
+        assert 0.3 <= first.kept_area <= 0.7
+        assert np.array_equal(first.to_original, again.to_original)
+    with pytest.raises(ValueError, match="choose from"):
+        random_cut(creature, "slice", np.random.default_rng(0))
+
+
+def test_a_part_is_recognised_and_other_topology_differences_refused(creature):
+    part = plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.5, "part.off").mesh
+    assert pair_kind(creature, creature).mode == "whole"
+    kind = pair_kind(part, creature)
+    assert kind.mode == "partial" and "part.off" in kind.reason and kind.area_ratio < 0.6
+    with pytest.raises(MeshError, match="swap source and target"):
+        pair_kind(creature, part)
+    with pytest.raises(MeshError, match="partial=auto"):
+        pair_kind(part, creature, partial=False)
+    enlarged = Mesh(part.verts * 10.0, part.faces, "millimetres.off")
+    with pytest.raises(MeshError, match="same unit"):
+        pair_kind(enlarged, creature)
+
+
+def test_the_identity_of_a_part_covers_what_was_kept():
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    whole = Mesh(sphere.vertices, sphere.faces, "sphere")
+    for part in (
+        plane_cut(whole, np.array([1.0, 0.2, 0.0]), 0.5, "half"),
+        holes_cut(whole, np.array([0, 100]), 0.6, "holed"),
+    ):
+        covered = covered_target(whole, part.mesh.verts, mean_edge_length(part.mesh))
+        kept = np.zeros(whole.n_verts, dtype=bool)
+        kept[part.to_original] = True
+        assert covered[kept].all()
+        assert (covered & ~kept).sum() <= 0.01 * kept.sum()  # not the ring one edge outside
+
+
+def test_cut_consistency_prefers_features_that_find_each_vertex_of_the_part():
+    generator = torch.Generator().manual_seed(0)
+    whole = torch.nn.functional.normalize(torch.randn(50, 8, generator=generator), dim=1)
+    to_whole = torch.arange(10, 40)
+    agreeing = cut_consistency_loss(whole[to_whole], whole, to_whole, 0.07)
+    shuffled = cut_consistency_loss(whole[to_whole.flip(0)], whole, to_whole, 0.07)
+    assert agreeing < 0.5 < shuffled
+    points = torch.tensor([0, 3])
+    assert torch.isclose(
+        cut_consistency_loss(whole[to_whole], whole, to_whole, 0.07, points),
+        cut_consistency_loss(whole[to_whole[points]], whole, to_whole[points], 0.07),
+    )
+
+
+def test_the_partial_mode_recovers_the_identity_on_the_kept_part(creature):
+    """A cut copy against its whole, with the whole's own features restricted to the part."""
+    part = plane_cut(creature, np.array([0.0, 1.0, 0.3]), 0.6, "part")
+    feat_whole = WKSExtractor()(creature)
+    result = spidermatch.match(
+        part.mesh,
+        creature,
+        features=(feat_whole[part.to_original], feat_whole),
+        resolution=300,
+        time_limit=600,
+    )
+    assert result.details.pair.mode == "partial" and result.status == "optimal"
+    sparse_source, sparse_target = result.matches.T
+    sparse_error = np.linalg.norm(creature.verts[sparse_target] - part.mesh.verts[sparse_source], axis=1)
+    dense_error = np.linalg.norm(creature.verts[result.dense_map] - part.mesh.verts, axis=1)
+    assert np.mean(sparse_error) < 0.5 * mean_edge_length(result.details.target.mesh)
+    assert np.mean(dense_error) < 0.5 * mean_edge_length(creature)
+    covered = result.dense.covered
+    kept = np.zeros(creature.n_verts, dtype=bool)
+    kept[part.to_original] = True
+    assert (covered & kept).sum() / (covered | kept).sum() > 0.85
+
+
+def test_a_source_with_a_hole_is_matched_without_options(tmp_path, creature):
+    holed = holes_cut(creature, np.array([10]), 0.85, "holed")
+    save_mesh(holed.mesh, tmp_path / "holed.off")
+    save_mesh(creature, tmp_path / "whole.off")
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        cfg = compose(
+            config_name="match",
+            overrides=[
+                f"source={tmp_path / 'holed.off'}",
+                f"target={tmp_path / 'whole.off'}",
+                "resolution=150",
+                "output.png=false",
+                "solver.time_limit=600",
+            ],
+        )
+    out = tmp_path / "run"
+    assert run_match(cfg, out) == 0
+    result = json.loads((out / "result.json").read_text())
+    assert result["pair"]["mode"] == "partial" and "1 boundary loop" in result["pair"]["reason"]
+    assert result["status"] in ("optimal", "feasible")
+    assert 0.5 < result["overlap"]["target_covered_area"] <= 1.0
+    with np.load(out / "dense_map.npz") as dense:
+        assert dense["target_covered"].shape == (load_mesh(tmp_path / "whole.off").n_verts,)
