@@ -284,7 +284,7 @@ class LearnedExtractor:
 
         The part is measured in the whole's unit of length (both meshes are assumed to share
         one unit, as the partial mode does) and, with an orientation search, presented in
-        the orientation whose features find the closest partners on the whole
+        the orientation whose feature matches on the whole one rigid motion explains best
         (:meth:`features.orientation.OrientationSearch.best_for_part`). Test-time adaptation
         is skipped: its loss assumes two whole shapes.
 
@@ -301,7 +301,9 @@ class LearnedExtractor:
         shape = prepare_shape(part, self.config, use_cache=self.use_cache, scale_area=whole.area)
         if self.orientation is not None:
             probe = probe_input(part, self.config, self.train_faces, self.use_cache, scale_area=whole.area)
-            chosen = self.orientation.best_for_part(self.network, probe, torch.from_numpy(feat_whole).float())
+            chosen = self.orientation.best_for_part(
+                self.network, probe, torch.from_numpy(feat_whole).float(), whole.verts / np.sqrt(whole.area)
+            )
             self.orientations[part.name] = chosen
             if chosen.degrees != 0.0:
                 logger.info("%s: input %s (orientation search for a part)", part.name, chosen.describe())

@@ -27,9 +27,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
+from features.diffusion_net import XYZ_CHANNELS, DiffusionNet, ModelConfig, ShapeInput, prepare_shape
 from features.fmap import FmapLossConfig, fmap_terms
 from spidermatch.mesh import Mesh, principal_axes
+from spidermatch.partial import rigid_fit_residual
 
 COORDINATE_INPUTS = ("xyz", "wks_xyz")
 
@@ -168,29 +169,38 @@ class OrientationSearch:
                 found.append((best, network(presented.features, presented.ops)))
             return found
 
-    def best_for_part(self, network: DiffusionNet, part: ShapeInput, whole: torch.Tensor) -> Orientation:
-        """The orientation of a partial shape whose features find the closest partners on its whole.
+    def best_for_part(
+        self, network: DiffusionNet, part: ShapeInput, whole: torch.Tensor, whole_points: np.ndarray
+    ) -> Orientation:
+        """The orientation of a partial shape whose feature matches one rigid motion explains best.
 
-        The unsupervised loss of :meth:`search` compares two whole shapes; a part is judged
-        instead by the mean cosine similarity of each of its vertices' features with the
-        nearest feature of the whole (no labels).
+        The unsupervised loss of :meth:`search` compares two whole shapes. A part is judged
+        instead by where its vertices' features find their nearest features on the whole: the
+        candidate whose partners lie closest to where a single rigid motion puts the vertices
+        (:func:`spidermatch.partial.rigid_fit_residual`, no labels) wins. Measured on cut
+        FAUST_r shapes, the mean feature similarity alone preferred half turns far more often.
 
         Parameters
         ----------
         network : DiffusionNet
         part : ShapeInput
-            The partial shape (V_p vertices), at the training resolution.
+            The partial shape (V_p vertices), at the training resolution, its last three input
+            channels the coordinates in the whole's unit.
         whole : torch.Tensor, shape (V, C_out)
             Features of the whole, L2-normalised rows.
+        whole_points : np.ndarray, shape (V, 3)
+            The whole's vertices in the same unit.
         """
-        best = (-math.inf, UNTURNED)
+        points = part.features[:, -XYZ_CHANNELS:].double().numpy()
+        best = (math.inf, UNTURNED)
         with torch.no_grad():
             for candidate in self.candidates(part):
                 out = network(rotated_input(part, candidate.rotation).features, part.ops)
                 out = torch.nn.functional.normalize(out, dim=-1)
-                score = (out @ whole.T).max(dim=1).values.mean().item()
-                if score > best[0]:
-                    best = (score, candidate)
+                partners = (out @ whole.T).argmax(dim=1).numpy()
+                residual = rigid_fit_residual(points, whole_points[partners])
+                if residual < best[0]:
+                    best = (residual, candidate)
         return best[1]
 
     def _best(

@@ -44,6 +44,9 @@ from spidermatch.validate import check_settings
 
 logger = logging.getLogger(__name__)
 
+# A partial source is decimated to its share of the faces by area, but never below this.
+MIN_PARTIAL_FACES = 100
+
 
 class MatchError(RuntimeError):
     """A match did not produce a certified result; ``exit_code`` is the CLI's exit status."""
@@ -203,6 +206,20 @@ def _stage(timings: dict, name: str):
     logger.info("%s done in %.2f s", name, timings[name])
 
 
+def source_resolution(source: Mesh, target: Mesh, settings: MatchSettings) -> int:
+    """Faces of the source's low-resolution mesh (its share by area for a partial source).
+
+    ``settings.resolution`` for a whole source. A partial source gets its share of it by
+    area, so that part and whole get edges of one length: at equal face counts a part of
+    half the whole's area would get edges 0.7 times the whole's, and several of its vertices
+    would have to share each target vertex.
+    """
+    if not settings.partial:
+        return settings.resolution
+    share = min(1.0, source.area / target.area)
+    return max(MIN_PARTIAL_FACES, round(settings.resolution * share))
+
+
 def low_resolution_features(features: np.ndarray, to_full: np.ndarray) -> np.ndarray:
     """Rows of full-resolution features (V, D) at the low-res vertices, L2-normalised."""
     return unit_rows(np.asarray(features)[to_full])
@@ -234,7 +251,7 @@ def prepare(
         target.area,
     )
     with _stage(timings, "decimate"):
-        low_x = decimate(source.centred(), settings.resolution, settings.decimation)
+        low_x = decimate(source.centred(), source_resolution(source, target, settings), settings.decimation)
         low_y = decimate(target.centred(), settings.resolution, settings.decimation)
     with _stage(timings, "curve"):
         curve = spider_curve(

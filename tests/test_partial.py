@@ -20,6 +20,7 @@ from spidermatch.partial import (
     pair_kind,
     plane_cut,
     random_cut,
+    rigid_fit_residual,
     view_cut,
 )
 from spidermatch.synthetic import make_creature
@@ -103,6 +104,24 @@ def test_the_identity_of_a_part_covers_what_was_kept():
         kept[part.to_original] = True
         assert covered[kept].all()
         assert (covered & ~kept).sum() <= 0.01 * kept.sum()  # not the ring one edge outside
+
+
+def test_the_rigid_fit_residual_tells_a_moved_copy_from_scrambled_partners(creature):
+    points = creature.verts
+    angle = 2.0
+    turn = np.array(
+        [[np.cos(angle), 0.0, np.sin(angle)], [0.0, 1.0, 0.0], [-np.sin(angle), 0.0, np.cos(angle)]]
+    )
+    moved = points @ turn.T + np.array([3.0, -1.0, 0.5])
+    spread = np.linalg.norm(points - points.mean(axis=0), axis=1).mean()
+    assert rigid_fit_residual(points, moved) < 1e-9 * spread
+    wrong = moved.copy()
+    wrong[::4] = moved[np.random.default_rng(0).permutation(points.shape[0])[::4]]
+    assert rigid_fit_residual(points, wrong) < 1e-9 * spread  # a quarter wrong does not decide it
+    mirrored = moved * np.array([-1.0, 1.0, 1.0])  # a reflection is no rigid motion
+    assert rigid_fit_residual(points, mirrored) > 0.05 * spread
+    scrambled = moved[np.random.default_rng(1).permutation(points.shape[0])]
+    assert rigid_fit_residual(points, scrambled) > 0.5 * spread
 
 
 def test_cut_consistency_prefers_features_that_find_each_vertex_of_the_part():
