@@ -321,6 +321,8 @@ def recognised_pair(source: Mesh, target: Mesh, partial: str) -> PairKind:
         return PairKind("whole", str(error), source.area / target.area)
     if kind.mode == "partial":
         logger.info("partial mode: %s", kind.reason)
+    if kind.caution:
+        logger.warning("%s", kind.caution)
     return kind
 
 

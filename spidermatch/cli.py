@@ -375,6 +375,9 @@ def check_inputs(cfg, inputs: MatchInputs, report: dict) -> MatchInputs:
     report["pair"] = {"mode": kind.mode, "reason": kind.reason, "area_ratio": round(kind.area_ratio, 4)}
     if kind.mode == "partial":
         logger.info("partial mode: %s", kind.reason)
+    if kind.caution:
+        logger.warning("%s", kind.caution)
+        report.setdefault("warnings", []).append(kind.caution)
     warnings = coarseness_warnings((inputs.source, inputs.target), inputs.resolution)
     if warnings:
         report.setdefault("warnings", []).extend(warnings)
@@ -575,6 +578,7 @@ def _write_pngs(
         result.full_pairs if dense_map is None else dense_map,
         inputs.description,
         status_line(report),
+        None if dense_map is None else result.dense.covered,
     )
     if errors is None and inputs.source_corr is not None:
         errors = map_errors(pictures, inputs.source_corr, inputs.target_corr)

@@ -30,6 +30,8 @@ class MatchPictures:
         Dense ``src_to_tgt`` map, or sparse (source, target) full-resolution pairs.
     title, status : str
         Title line (paths are shortened in the PNGs) and status line.
+    target_covered : np.ndarray, shape (V_tgt,) bool, optional
+        The target region a partial source covers; the rest is drawn greyed out.
     """
 
     source: Mesh
@@ -39,6 +41,7 @@ class MatchPictures:
     matches: np.ndarray
     title: str
     status: str
+    target_covered: np.ndarray | None = None
 
 
 DISPLAY_FACES = 100_000
@@ -78,7 +81,12 @@ def for_display(
         )
     if errors is not None:
         errors = (np.asarray(on_source.query(pictures.source.verts[errors[0]])[1]), errors[1])
-    small = dataclasses.replace(pictures, source=shown[0].mesh, target=shown[1].mesh, matches=matches)
+    covered = pictures.target_covered
+    if covered is not None:
+        covered = np.asarray(covered)[shown[1].to_full]
+    small = dataclasses.replace(
+        pictures, source=shown[0].mesh, target=shown[1].mesh, matches=matches, target_covered=covered
+    )
     logger.info(
         "pictures drawn on meshes decimated to %d and %d faces", shown[0].mesh.n_faces, shown[1].mesh.n_faces
     )
@@ -145,7 +153,12 @@ def write_match_pictures(
     output_dir = Path(output_dir)
     p, errors = for_display(pictures, errors)
     jobs = [
-        ("correspondence.png", save_correspondence_png, (p.source, p.target, p.matches), (p.title, p.status)),
+        (
+            "correspondence.png",
+            save_correspondence_png,
+            (p.source, p.target, p.matches),
+            (p.title, p.status, p.target_covered),
+        ),
         ("spider_curve.png", save_curve_png, (p.low_source, p.curve_vertices), ("", p.status)),
     ]
     if errors is not None:
@@ -154,7 +167,12 @@ def write_match_pictures(
         from spidermatch.viewer import save_match_viewer
 
         jobs.append(
-            ("viewer.html", save_match_viewer, (p.source, p.target, p.matches), (p.title, p.status, errors))
+            (
+                "viewer.html",
+                save_match_viewer,
+                (p.source, p.target, p.matches),
+                (p.title, p.status, errors, p.target_covered),
+            )
         )
     paths = []
     for name, save, data, labels in jobs:

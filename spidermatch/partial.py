@@ -257,12 +257,21 @@ class PairKind:
         Why, in one sentence for the log and ``result.json``.
     area_ratio : float
         Source area over target area, in the meshes' own units.
+    caution : str
+        What the user should know about this reading of the pair ("" if nothing).
 
     """
 
     mode: str
     reason: str
     area_ratio: float
+    caution: str = ""
+
+
+INCOMPLETE_TARGET = (
+    "the target has boundary loops too: if it is incomplete as well, parts of the source may have no "
+    "partner, and the map still gives every source vertex one (partial-to-partial matching is not supported)"
+)
 
 
 def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
@@ -313,7 +322,7 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
             f"{source.name} has {top_x} and {ratio:.0%} of the area of {target.name} ({top_y}): "
             "matched as a part of it"
         )
-        return PairKind("partial", reason, ratio)
+        return PairKind("partial", reason, ratio, INCOMPLETE_TARGET if top_y.boundaries else "")
     if top_y.boundaries > top_x.boundaries and top_y.genus <= top_x.genus:
         raise MeshError(
             f"{refusal}; the target looks like a part of the source. The partial mode maps a part onto "

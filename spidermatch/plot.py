@@ -142,6 +142,24 @@ def transfer_colours(source_colours: np.ndarray, target: Mesh, matches: np.ndarr
     return spread_to_vertices(target, pairs[:, 1], source_colours[pairs[:, 0]])
 
 
+UNCOVERED_GREY = 0.8
+"""Lightness of the grey an uncovered target region is drawn in."""
+
+
+def greyed_uncovered(colours: np.ndarray, covered: np.ndarray | None) -> np.ndarray:
+    """Vertex colours (V, 3) with the vertices outside ``covered`` (V,) bool turned pale grey.
+
+    The region a partial source does not cover keeps a faint trace of the colours the map
+    spread onto it (a fifth), so its shape still reads against the covered part.
+    """
+    if covered is None:
+        return colours
+    shaded = np.array(colours, dtype=np.float64, copy=True)
+    outside = ~np.asarray(covered, dtype=bool)
+    shaded[outside] = 0.2 * shaded[outside] + 0.8 * UNCOVERED_GREY
+    return shaded
+
+
 def error_colormap():
     """Error heat map colours: pale yellow (0), orange, dark purple (not black, so the shape shows)."""
     from matplotlib import colormaps
@@ -344,6 +362,7 @@ def save_correspondence_png(
     path: str | os.PathLike,
     title: str = "",
     status: str = "",
+    target_covered: np.ndarray | None = None,
 ) -> Path:
     """Render source and target from both sides, the target coloured through the map.
 
@@ -361,9 +380,11 @@ def save_correspondence_png(
         PNG file to write.
     title, status : str
         First title line (paths are shortened to file names) and the status line below it.
+    target_covered : np.ndarray, shape (V_tgt,) bool, optional
+        The region a partial source covers; the rest of the target is greyed out.
     """
     colours_x = position_colours(source.verts)
-    colours_y = transfer_colours(colours_x, target, matches)
+    colours_y = greyed_uncovered(transfer_colours(colours_x, target, matches), target_covered)
     dense = np.asarray(matches).ndim == 1
     views_x, views_y = mesh_views(source), mesh_views(target)
     panels = [
@@ -373,6 +394,8 @@ def save_correspondence_png(
         (target, colours_y, views_y[1], f"target, {views_y[1].label}"),
     ]
     what = "dense map" if dense else f"{len(np.asarray(matches))} matches, nearest-match fill"
+    if target_covered is not None:
+        what += ", grey: target not covered"
     return _render_panels(panels, title, f"{status} | {what}" if status else what, path)
 
 

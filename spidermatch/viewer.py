@@ -23,6 +23,7 @@ from spidermatch.mesh import Mesh
 from spidermatch.plot import (
     ERROR_UNITS,
     error_colours,
+    greyed_uncovered,
     mesh_views,
     position_colours,
     spread_to_vertices,
@@ -134,6 +135,7 @@ def save_match_viewer(
     title: str = "",
     status: str = "",
     errors: tuple[np.ndarray, np.ndarray] | None = None,
+    target_covered: np.ndarray | None = None,
     vmax: float = 0.2,
 ) -> Path:
     """The viewer page of a match: source coloured by position, target coloured through the map.
@@ -150,20 +152,27 @@ def save_match_viewer(
     errors : tuple of np.ndarray, optional
         (source vertices (N,), geodesic errors (N,)): adds an error layer, the heat map on
         the source and the same colours carried to the target through the map.
+    target_covered : np.ndarray, shape (V_tgt,) bool, optional
+        The region a partial source covers; the rest of the target is greyed out in every layer.
     vmax : float
         Error drawn with the darkest colour.
     """
     colours_x = position_colours(source.verts)
     layers_x = {TRANSFER_LAYER: colours_x}
-    layers_y = {TRANSFER_LAYER: transfer_colours(colours_x, target, matches)}
+    transferred = transfer_colours(colours_x, target, matches)
+    layers_y = {TRANSFER_LAYER: greyed_uncovered(transferred, target_covered)}
     notes = {TRANSFER_LAYER: "source coloured by position (hue: around the vertical axis, light: height)"}
     if errors is not None:
         per_vertex = spread_to_vertices(source, errors[0], np.asarray(errors[1], dtype=np.float64))[:, 0]
         layers_x[ERROR_LAYER] = error_colours(per_vertex, vmax)
-        layers_y[ERROR_LAYER] = transfer_colours(layers_x[ERROR_LAYER], target, matches)
+        layers_y[ERROR_LAYER] = greyed_uncovered(
+            transfer_colours(layers_x[ERROR_LAYER], target, matches), target_covered
+        )
         notes[ERROR_LAYER] = (
             f"{ERROR_UNITS}: pale 0, dark >= {vmax:g}; mean {np.mean(errors[1]):.4f}; "
             "on the target, carried through the map"
         )
+    if target_covered is not None:
+        notes = {layer: f"{note}; grey on the target: not covered" for layer, note in notes.items()}
     panels = (ViewerMesh("source", source, layers_x), ViewerMesh("target", target, layers_y))
     return save_viewer_html(panels, path, title, status, notes)

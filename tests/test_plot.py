@@ -6,6 +6,7 @@ from scipy.spatial import cKDTree
 from spidermatch.mesh import Mesh
 from spidermatch.plot import (
     View,
+    greyed_uncovered,
     map_pairs,
     occluded,
     position_colours,
@@ -159,6 +160,26 @@ def test_correspondence_png_fills_its_panels(tmp_path, creatures, form):
     )
     assert path.stat().st_size > 10_000
     assert coloured_rows(path) > 0.6
+
+
+def test_the_target_region_a_part_does_not_cover_is_drawn_grey(tmp_path, creatures):
+    source, target, truth = creatures
+    covered = target.verts[:, 1] > np.median(target.verts[:, 1])
+    colours = transfer_colours(position_colours(source.verts), target, truth)
+    shaded = greyed_uncovered(colours, covered)
+    np.testing.assert_array_equal(shaded[covered], colours[covered])
+    outside = shaded[~covered]
+    assert (outside.max(axis=1) - outside.min(axis=1)).max() < 0.2  # pale grey, not a colour
+    plain = save_correspondence_png(source, target, truth, tmp_path / "plain.png")
+    greyed = save_correspondence_png(source, target, truth, tmp_path / "grey.png", target_covered=covered)
+
+    def saturated_pixels(path):
+        import matplotlib.image
+
+        image = matplotlib.image.imread(path)[:, :, :3]
+        return int((image.max(axis=2) - image.min(axis=2) > 0.2).sum())
+
+    assert saturated_pixels(greyed) < 0.85 * saturated_pixels(plain)
 
 
 def test_error_png_and_curve_png_are_written(tmp_path, creatures):

@@ -73,6 +73,19 @@ def test_viewer_is_self_contained_and_holds_both_meshes(tmp_path, creatures, for
     np.testing.assert_allclose(source_colours / 255, position_colours(source.verts), atol=1 / 255)
 
 
+def test_viewer_greys_the_target_region_a_part_does_not_cover(tmp_path, creatures):
+    source, target, truth = creatures
+    covered = target.verts[:, 1] > np.median(target.verts[:, 1])
+    path = save_match_viewer(
+        source, target, truth, tmp_path / "v.html", "part", "optimal", target_covered=covered
+    )
+    data = page_data(path)
+    target_colours = decode(data["meshes"][1]["layers"]["colour transfer"], np.uint8).reshape(-1, 3) / 255
+    spread = target_colours.max(axis=1) - target_colours.min(axis=1)
+    assert spread[~covered].max() < 0.2 and spread[covered].max() > 0.3
+    assert "not covered" in json.dumps(data)
+
+
 def test_viewer_error_layer_and_a_title_that_could_break_the_page(tmp_path, creatures):
     source, target, truth = creatures
     title = "</script><script>alert(1)</script> & <b>"
