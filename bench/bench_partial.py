@@ -132,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", required=True, help="the FAUST_r-style folder the parts were cut from")
     parser.add_argument("--parts", required=True, type=Path, help="the output folder of make_partial.py")
     parser.add_argument("--pairs", required=True, help="pairs file: 'a b' per line")
-    parser.add_argument("--checkpoint", required=True)
+    parser.add_argument("--checkpoint", required=True, help="a trained network, or 'wks' for WKS descriptors")
     parser.add_argument("--mode", choices=("partial", "whole"), default="partial")
     parser.add_argument("--faces", type=int, default=1000)
     parser.add_argument("--time-limit", type=float, default=120.0)
@@ -154,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.runs:
         first, stop = (int(text) for text in args.runs.split(":"))
         runs = runs[first:stop]
-    extractor = LearnedExtractor(args.checkpoint)
+    extractor = "wks" if args.checkpoint == "wks" else LearnedExtractor(args.checkpoint)
     print(" | ".join(COLUMNS), flush=True)
     rows = []
     for part_name, target_name in runs:

@@ -177,8 +177,9 @@ class OrientationSearch:
         The unsupervised loss of :meth:`search` compares two whole shapes. A part is judged
         instead by where its vertices' features find their nearest features on the whole: the
         candidate whose partners lie closest to where a single rigid motion puts the vertices
-        (:func:`spidermatch.partial.rigid_fit_residual`, no labels) wins. Measured on cut
-        FAUST_r shapes, the mean feature similarity alone preferred half turns far more often.
+        (:func:`spidermatch.partial.rigid_fit_residual`, no labels) wins. On 25 cut FAUST_r
+        shapes the mean feature similarity chose worse (mean nearest-feature error 0.211
+        against 0.183; the best of all candidates 0.152).
 
         Parameters
         ----------
