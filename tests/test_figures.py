@@ -21,10 +21,12 @@ def pair():
     return inputs, low, truth
 
 
-def fake_result(low, pairs, dense_map=None):
-    """What _write_pngs reads of a MatchResult: low-res source, curve, full-res pairs, dense map."""
+def fake_result(low, pairs, dense_map=None, covered=None):
+    """What _write_pngs reads of a MatchResult: low-res source, curve, full-res pairs, dense map
+    and the target region it covers (a partial source's)."""
     curve = SimpleNamespace(vertices=np.arange(low.mesh.n_verts))
-    return SimpleNamespace(source=low, curve=curve, full_pairs=pairs, dense_map=dense_map)
+    dense = None if dense_map is None else SimpleNamespace(covered=covered)
+    return SimpleNamespace(source=low, curve=curve, full_pairs=pairs, dense_map=dense_map, dense=dense)
 
 
 def test_pictures_use_the_dense_map_when_the_result_has_one(tmp_path, pair):
