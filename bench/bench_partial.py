@@ -41,13 +41,6 @@ from spidermatch.mesh import Mesh
 COLUMNS = ("part", "target", "kept_area", "mode", "status", "gap", "solve_s", "total_s", "dense_error", "iou")
 
 
-def vertex_areas(mesh: Mesh) -> np.ndarray:
-    """A third of the area of every face at each vertex, shape (V,)."""
-    areas = np.zeros(mesh.n_verts)
-    np.add.at(areas, mesh.faces.reshape(-1), np.repeat(mesh.face_areas / 3.0, 3))
-    return areas
-
-
 def true_overlap(target: Mesh, target_corr: np.ndarray, kept_rows: np.ndarray) -> np.ndarray:
     """Target vertices whose nearest reference point (3-D) is one the part kept, shape (V_Y,) bool."""
     _, nearest = cKDTree(target.verts[target_corr]).query(target.verts)
@@ -56,7 +49,7 @@ def true_overlap(target: Mesh, target_corr: np.ndarray, kept_rows: np.ndarray) -
 
 def area_iou(target: Mesh, predicted: np.ndarray, truth: np.ndarray) -> float:
     """Intersection over union of two vertex sets, each vertex weighted by its area."""
-    areas = vertex_areas(target)
+    areas = target.vertex_areas
     return float(areas[predicted & truth].sum() / areas[predicted | truth].sum())
 
 

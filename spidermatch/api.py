@@ -26,7 +26,7 @@ from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
 from spidermatch.feature_transfer import pair_features as capped_pair_features
 from spidermatch.mesh import Mesh, MeshError, make_mesh
 from spidermatch.model_size import check_meshes_fit
-from spidermatch.partial import PairKind, pair_kind
+from spidermatch.partial import PairKind, announce_pair, pair_kind
 from spidermatch.validate import check_settings, feature_cap_problem, raise_problems
 
 logger = logging.getLogger(__name__)
@@ -319,10 +319,7 @@ def recognised_pair(source: Mesh, target: Mesh, partial: str) -> PairKind:
     except MeshError as error:
         logger.warning("%s (matched as two whole shapes)", error)
         return PairKind("whole", str(error), source.area / target.area)
-    if kind.mode == "partial":
-        logger.info("partial mode: %s", kind.reason)
-    if kind.caution:
-        logger.warning("%s", kind.caution)
+    announce_pair(kind)
     return kind
 
 

@@ -30,7 +30,7 @@ from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, mesh_features, pa
 from spidermatch.io import load_mesh, read_vts
 from spidermatch.mesh import Mesh, MeshError
 from spidermatch.model_size import check_meshes_fit
-from spidermatch.partial import PairKind, overlap_summary, pair_kind
+from spidermatch.partial import PairKind, announce_pair, overlap_summary, pair_kind
 from spidermatch.pipeline import MatchError, MatchResult, MatchSettings, add_dense_map, match
 from spidermatch.solve.highs import SolverOptions
 from spidermatch.solve.strategies import strategy_for
@@ -373,10 +373,8 @@ def check_inputs(cfg, inputs: MatchInputs, report: dict) -> MatchInputs:
         report.setdefault("warnings", []).extend(repairs)
     kind = checked_pair_kind(cfg, inputs, report)
     report["pair"] = {"mode": kind.mode, "reason": kind.reason, "area_ratio": round(kind.area_ratio, 4)}
-    if kind.mode == "partial":
-        logger.info("partial mode: %s", kind.reason)
+    announce_pair(kind)
     if kind.caution:
-        logger.warning("%s", kind.caution)
         report.setdefault("warnings", []).append(kind.caution)
     warnings = coarseness_warnings((inputs.source, inputs.target), inputs.resolution)
     if warnings:
@@ -603,10 +601,9 @@ class FeatureMemo:
         return self._cache[key]
 
     def pair(self, inputs: MatchInputs, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray, str, dict]:
-        """Features of a pair and how they were made; adaptive extractors are never cached."""
-        if (
-            hasattr(self.extractor, "pair_features") or inputs.partial
-        ):  # a part's features depend on its whole
+        """Features of a pair and how they were made; adaptive extractors and parts are never cached."""
+        depends_on_pair = hasattr(self.extractor, "pair_features") or inputs.partial  # a part's: on its whole
+        if depends_on_pair:
             capped = {}
             features = pair_features(
                 self.extractor, inputs.source, inputs.target, self.max_vertices, capped, inputs.partial

@@ -405,8 +405,7 @@ def _nearest_in_own_patches(projected, labels, points, images) -> np.ndarray:
 def mean_incident_edge_length(mesh: Mesh) -> np.ndarray:
     """Mean length of the edges at each vertex, shape (V,)."""
     edges = mesh.edges
-    length = np.linalg.norm(mesh.verts[edges[:, 0]] - mesh.verts[edges[:, 1]], axis=1)
-    total = np.bincount(edges.reshape(-1), np.repeat(length, 2), minlength=mesh.n_verts)
+    total = np.bincount(edges.reshape(-1), np.repeat(mesh.edge_lengths, 2), minlength=mesh.n_verts)
     count = np.bincount(edges.reshape(-1), minlength=mesh.n_verts)
     return total / np.maximum(count, 1)
 

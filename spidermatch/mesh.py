@@ -80,6 +80,25 @@ class Mesh:
         return float(self.face_areas.sum())
 
     @property
+    def vertex_areas(self) -> np.ndarray:
+        """A third of the area of every face at each of its vertices, shape (V,)."""
+
+        def lumped() -> np.ndarray:
+            areas = np.zeros(self.n_verts)
+            np.add.at(areas, self.faces.reshape(-1), np.repeat(self.face_areas / 3.0, 3))
+            return areas
+
+        return self._cached("vertex_areas", lumped)
+
+    @property
+    def edge_lengths(self) -> np.ndarray:
+        """Length of each of :attr:`edges`, shape (E,)."""
+        return self._cached(
+            "edge_lengths",
+            lambda: np.linalg.norm(self.verts[self.edges[:, 0]] - self.verts[self.edges[:, 1]], axis=1),
+        )
+
+    @property
     def edges(self) -> np.ndarray:
         """Unique undirected mesh edges, shape (E, 2), with ``edges[:, 0] < edges[:, 1]``."""
         return self._cached("edges", lambda: unique_edges(self.faces))

@@ -18,6 +18,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
+from spidermatch.dense import mean_incident_edge_length
 from spidermatch.mesh import Mesh, MeshError, face_edges, vertex_fans
 
 logger = logging.getLogger(__name__)
@@ -239,10 +240,6 @@ def _random_direction(rng: np.random.Generator) -> np.ndarray:
     return vector / np.linalg.norm(vector)
 
 
-PAIR_MODES = ("whole", "partial")
-"""How a pair is matched: two whole surfaces, or a part of the target (the source) to the target."""
-
-
 @dataclass(frozen=True)
 class PairKind:
     """What a pair of meshes is and how it is matched.
@@ -272,6 +269,14 @@ INCOMPLETE_TARGET = (
     "the target has boundary loops too: if it is incomplete as well, parts of the source may have no "
     "partner, and the map still gives every source vertex one (partial-to-partial matching is not supported)"
 )
+
+
+def announce_pair(kind: PairKind) -> None:
+    """Log how a pair is matched: the partial mode's reason, and any caution as a warning."""
+    if kind.mode == "partial":
+        logger.info("partial mode: %s", kind.reason)
+    if kind.caution:
+        logger.warning("%s", kind.caution)
 
 
 def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
@@ -364,13 +369,8 @@ def covered_target(
     np.ndarray, shape (V_Y,), bool
     """
     edges = target.edges
-    lengths = np.linalg.norm(target.verts[edges[:, 0]] - target.verts[edges[:, 1]], axis=1)
     ends = edges.reshape(-1)
-    degree = np.bincount(ends, minlength=target.n_verts)
-    local_edge = np.bincount(ends, weights=np.repeat(lengths, 2), minlength=target.n_verts) / np.maximum(
-        degree, 1
-    )
-    radius = 0.5 * np.maximum(local_edge, source_edge)
+    radius = 0.5 * np.maximum(mean_incident_edge_length(target), source_edge)
     distance, _ = cKDTree(np.asarray(image_points, dtype=float)).query(
         target.verts, distance_upper_bound=radius.max()
     )
@@ -392,17 +392,14 @@ def _closed(region: np.ndarray, adjacency: sp.csr_matrix, rings: int) -> np.ndar
 
 def mean_edge_length(mesh: Mesh) -> float:
     """Mean length of the mesh's edges."""
-    edges = mesh.edges
-    return float(np.linalg.norm(mesh.verts[edges[:, 0]] - mesh.verts[edges[:, 1]], axis=1).mean())
+    return float(mesh.edge_lengths.mean())
 
 
 def overlap_summary(target: Mesh, covered: np.ndarray) -> dict:
     """Share of the target's vertices and area the map covers, for ``result.json``."""
-    vertex_area = np.zeros(target.n_verts)
-    np.add.at(vertex_area, target.faces.reshape(-1), np.repeat(target.face_areas / 3.0, 3))
     return {
         "target_covered_vertices": int(covered.sum()),
-        "target_covered_area": round(float(vertex_area[covered].sum() / vertex_area.sum()), 4),
+        "target_covered_area": round(float(target.vertex_areas[covered].sum() / target.area), 4),
     }
 
 

@@ -412,9 +412,8 @@ def add_dense_map(
 ) -> None:
     """Set ``result.dense``: the image of every full-resolution source vertex (a checked matching only).
 
-    For a partial source the map also says which target vertices it covers (``covered``):
-    those within half an edge of an image point, or surrounded by covered ones
-    (:func:`spidermatch.partial.covered_target`).
+    For a partial source the map also says which target vertices it covers (``covered``,
+    :func:`spidermatch.partial.covered_target`).
 
     Parameters
     ----------
