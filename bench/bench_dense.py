@@ -1,18 +1,25 @@
 """Dense maps of every vertex from the certified low-resolution map: each method side by side.
 
     .venv/bin/python bench/bench_dense.py --data ../shared/data/FAUST_r --resolution 1000 \
-        --features learned --checkpoint best.pt
+        --features learned --checkpoint best.pt --out bench/results/dense_map_faust_val_1000
 
 Each pair is certified once (decimation, SpiderMatch solve, check) and the solved
 low-resolution map, the decimations and the features are cached in ``--cache``
 (keyed by pair, resolution, features and checkpoint), so that densification can be
 iterated on without re-solving (``--certify-only`` just fills the cache). Then, per
-pair, every variant and the features' nearest-neighbour map are measured: mean
-geodesic error over all reference points (dense Princeton protocol), tears, flips,
-densification time (``time_s``, wall clock: on a shared machine it includes waiting
-for the CPU) and its peak memory (``peak_mib``: tracemalloc's peak of the allocations
-made during a second, untimed call, numpy arrays included). Prints a table; writes
-``<out>.json`` and ``<out>.csv``.
+pair, every variant, the features' nearest-neighbour map and the ground truth are
+measured: the mean geodesic error of the vertex map (``dense_matches.csv``) over all
+reference points (dense Princeton protocol); tears, flipped and degenerate triangles
+of the vertex map (``vertex_*``) and of the image points (point form, ``point_*``; see
+:mod:`spidermatch.metrics`); how far the certified vertices' dense images lie from their
+certified images (``certified_distance``, in local low-resolution edge lengths, and
+``certified_within_edge``); the densification time (``time_s``, wall clock: on a shared
+machine it includes waiting for the CPU) and its peak memory (``peak_mib``:
+tracemalloc's peak of the allocations made during a second, untimed call, numpy arrays
+included). The ground truth row (``truth``) scores the dataset's correspondence the same
+way: each source vertex goes where the reference point on its nearest reference vertex
+goes (the reference points cover about 70 % of a FAUST_r shape's vertices). Prints a
+table; writes ``<out>.json`` and ``<out>.csv``.
 """
 
 from __future__ import annotations
@@ -30,8 +37,9 @@ from pathlib import Path
 
 import numpy as np
 from feature_options import add_feature_options, load_pair_with_features, parse_checked
+from scipy.spatial import cKDTree
 
-from spidermatch.dense import DenseSettings, densify, feature_nearest_neighbours
+from spidermatch.dense import DenseSettings, certified_agreement, densify, feature_nearest_neighbours
 from spidermatch.evaluate import sparse_map_errors
 from spidermatch.mesh import Mesh
 from spidermatch.metrics import consistency, geodesic_errors, vertex_map_consistency
@@ -42,6 +50,8 @@ VAL_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
 # Variant name -> DenseSettings keywords (the ones not given are DenseSettings' defaults).
 NARROW = dict(radius=1.0, distance_weight=1.0, n_neighbours=32)  # the earlier interp_features settings
 VARIANTS = {
+    "deformation": dict(method="deformation"),
+    "deformation_s0": dict(method="deformation", smoothing=0),
     "interp": dict(method="interp", smoothing=0),
     "interp_s3": dict(method="interp", smoothing=3),
     "interp_features": dict(method="interp_features", smoothing=0, **NARROW),
@@ -54,7 +64,18 @@ VARIANTS = {
     "zoomout_accept_s3": dict(method="zoomout_accept", smoothing=3, radius=1.0),
     "zoomout_s3": dict(method="zoomout", smoothing=3),
 }
-FIELDS = ("pair", "method", "geodesic_error", "tears", "flips", "flipped", "degenerate", "time_s", "peak_mib")
+FIGURES = ("tears", "flipped", "degenerate")
+FIELDS = (
+    "pair",
+    "method",
+    "geodesic_error",
+    *(f"vertex_{name}" for name in FIGURES),
+    *(f"point_{name}" for name in FIGURES),
+    "certified_distance",
+    "certified_within_edge",
+    "time_s",
+    "peak_mib",
+)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -64,7 +85,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--data", default="synthetic")
     parser.add_argument("--pairs", nargs="+", default=VAL_PAIRS, help="SOURCE:TARGET shape names")
     parser.add_argument("--resolution", type=int, default=1000)
-    add_feature_options(parser)
+    add_feature_options(parser, adaptation=True)
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     parser.add_argument(
         "--set", nargs="*", default=[], metavar="KEY=VALUE", help="DenseSettings for all variants"
@@ -101,7 +122,10 @@ def cache_path(args, pair: tuple[str, str]) -> Path:
     if args.checkpoint:
         stat = Path(args.checkpoint).stat()
         checkpoint = f"{Path(args.checkpoint).resolve()}:{stat.st_size}:{stat.st_mtime_ns}"
-    key = json.dumps([os.path.abspath(args.data), pair, args.resolution, args.features, checkpoint])
+    key = [os.path.abspath(args.data), pair, args.resolution, args.features, checkpoint]
+    if args.adapt_steps:
+        key.append(args.adapt_steps)
+    key = json.dumps(key)
     return (
         Path(args.cache)
         / f"{pair[0]}__{pair[1]}_{args.resolution}_{hashlib.sha1(key.encode()).hexdigest()[:12]}.npz"
@@ -134,7 +158,9 @@ def _certify(args, pair: tuple[str, str], path: Path) -> None:
     """Features, decimation and the certified solve of one pair, saved to ``path``."""
     from spidermatch.pipeline import MatchSettings, match
 
-    x, y, feat_x, feat_y = load_pair_with_features(args.data, pair, args.features, args.checkpoint)
+    x, y, feat_x, feat_y = load_pair_with_features(
+        args.data, pair, args.features, args.checkpoint, args.adapt_steps
+    )
     result = match(x.mesh, y.mesh, feat_x, feat_y, MatchSettings(resolution=args.resolution, dense=None))
     result.raise_for_status()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -161,33 +187,41 @@ def _restored(data, tag: str) -> Decimated:
 
 
 def measure_pair(text: str, certified: dict, variants: list[str], overrides: dict) -> list[dict]:
-    """One row per variant plus the nearest-neighbour map and the sparse certified map."""
+    """One row per variant plus the nearest-neighbour map, the ground truth and the sparse certified map."""
     x, y = certified["x"], certified["y"]
     source, target = x.mesh.centred(), y.mesh.centred()
+    low = (certified["low_x"], certified["low_y"], certified["low_map"])
     maps, rows = {}, []
     for name in variants:
         settings = DenseSettings(**{**VARIANTS[name], **overrides})
-        inputs = (source, target, certified["low_x"], certified["low_y"], certified["low_map"])
-        features = (certified["feat_x"], certified["feat_y"])
+        inputs = (source, target, *low, certified["feat_x"], certified["feat_y"], settings)
         start = time.perf_counter()
-        dense = densify(*inputs, *features, settings)
+        dense = densify(*inputs)
         seconds = time.perf_counter() - start
         tracemalloc.start()  # a second, traced run: tracing slows allocations, so it is not timed
-        densify(*inputs, *features, settings)
+        densify(*inputs)
         peak = tracemalloc.get_traced_memory()[1] / 2**20
         tracemalloc.stop()
         maps[name] = dense.vertex
-        figures = consistency(source, target, dense.points(target), dense.face, dense.bary).as_dict()
-        rows.append({"pair": text, "method": name, **figures, "time_s": seconds, "peak_mib": peak})
-    nearest = feature_nearest_neighbours(certified["feat_x"], certified["feat_y"])
-    maps["nearest_neighbour"] = nearest
-    rows.append(
-        {
-            "pair": text,
-            "method": "nearest_neighbour",
-            **vertex_map_consistency(source, target, nearest).as_dict(),
-        }
-    )
+        point_form = consistency(source, target, dense.points(target), dense.face, dense.bary)
+        agreement = certified_agreement(dense, target, *low)
+        rows.append(
+            {
+                "pair": text,
+                "method": name,
+                **_prefixed("vertex", vertex_map_consistency(source, target, dense.vertex)),
+                **_prefixed("point", point_form),
+                "certified_distance": agreement["mean_distance"],
+                "certified_within_edge": agreement["within_one_edge"],
+                "time_s": seconds,
+                "peak_mib": peak,
+            }
+        )
+    maps["nearest_neighbour"] = feature_nearest_neighbours(certified["feat_x"], certified["feat_y"])
+    maps["truth"] = truth_vertex_map(source, x.corr, y.corr)
+    for name in ("nearest_neighbour", "truth"):
+        figures = vertex_map_consistency(source, target, maps[name])
+        rows.append({"pair": text, "method": name, **_prefixed("vertex", figures)})
     errors = geodesic_errors(maps, x.corr, y.corr, target)
     for row in rows:
         row["geodesic_error"] = float(errors[row["method"]].mean())
@@ -195,6 +229,22 @@ def measure_pair(text: str, certified: dict, variants: list[str], overrides: dic
     for row in rows:
         print(_format(row), flush=True)
     return rows
+
+
+def _prefixed(form: str, figures) -> dict:
+    return {f"{form}_{name}": getattr(figures, name) for name in FIGURES}
+
+
+def truth_vertex_map(source: Mesh, source_corr: np.ndarray, target_corr: np.ndarray) -> np.ndarray:
+    """The ground truth as a map of every source vertex (V_X,): the image of its nearest reference vertex.
+
+    A source vertex that is a reference point's goes to that point's target vertex (the
+    first such point); any other vertex goes where its nearest reference vertex goes.
+    """
+    source_corr = np.asarray(source_corr, dtype=np.int64)
+    vertices, first_row = np.unique(source_corr, return_index=True)
+    nearest = cKDTree(source.verts[vertices]).query(source.verts)[1]
+    return np.asarray(target_corr, dtype=np.int64)[first_row[nearest]]
 
 
 def _sparse_error(certified: dict) -> float:
@@ -209,8 +259,9 @@ def _format(row: dict) -> str:
     cells = [f"{row['pair']:<22}", f"{row['method']:<20}"]
     for name in FIELDS[2:]:
         value = row.get(name)
-        cells.append(f"{name} {value:.4f}" if isinstance(value, float) else f"{name} -")
-    return "  ".join(cells)
+        short = name.replace("vertex_", "v_").replace("point_", "p_").replace("certified_", "cert_")
+        cells.append(f"{short} {value:.4f}" if isinstance(value, float) else f"{short} -")
+    return " ".join(cells)
 
 
 def write_results(args, rows: list[dict], overrides: dict) -> None:
@@ -232,10 +283,11 @@ def write_results(args, rows: list[dict], overrides: dict) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     peak_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     payload = {
-        "argv": sys.argv,
+        "argv": [_without_machine_path(item) for item in [Path(sys.argv[0]).name, *sys.argv[1:]]],
         "resolution": args.resolution,
         "features": args.features,
-        "checkpoint": args.checkpoint,
+        "checkpoint": _without_machine_path(args.checkpoint),
+        "adapt_steps": args.adapt_steps,
         "settings": overrides,
         "variants": {v: VARIANTS[v] for v in args.variants},
         "process_peak_rss_gib": peak_rss,
@@ -248,6 +300,13 @@ def write_results(args, rows: list[dict], overrides: dict) -> None:
         writer.writeheader()
         writer.writerows(rows + means)
     print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.csv')}")
+
+
+def _without_machine_path(text: str | None) -> str | None:
+    """An absolute path shortened to its last two parts (the results must not name one machine's folders)."""
+    if text is None or not os.path.isabs(text):
+        return text
+    return ".../" + "/".join(Path(text).parts[-2:])
 
 
 if __name__ == "__main__":

@@ -529,12 +529,20 @@ def _write_dense(
 
     Returns the dense map's geodesic errors (K,) at the reference points, or None without ground truth.
     """
+    from spidermatch.dense import certified_agreement
     from spidermatch.dense_report import dense_figures, write_dense_outputs
 
     for path in write_dense_outputs(output_dir, result.dense):
         logger.info("wrote %s", path)
+    certified = certified_agreement(result.dense, inputs.target, result.source, result.target, result.low_map)
     figures, errors = dense_figures(
-        result.dense, inputs.source, inputs.target, *features, inputs.source_corr, inputs.target_corr
+        result.dense,
+        inputs.source,
+        inputs.target,
+        *features,
+        inputs.source_corr,
+        inputs.target_corr,
+        certified,
     )
     report["dense"] = figures
     if result.dense.covered is not None:

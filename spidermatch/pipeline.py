@@ -438,6 +438,7 @@ def add_dense_map(
             result.low_map,
             *features,
             settings,
+            rest_scale=1.0 if partial else None,  # a part is measured in the target's unit
         )
         if partial:
             whole = target.centred()

@@ -12,6 +12,7 @@ import trimesh
 import spidermatch
 from spidermatch import api
 from spidermatch.datasets import SyntheticShapes
+from spidermatch.dense import certified_agreement
 from spidermatch.descriptors import WKSExtractor
 from spidermatch.evaluate import sparse_map_errors
 from spidermatch.io import load_mesh, save_mesh
@@ -60,11 +61,14 @@ def test_result_fields_and_direction(pair, from_paths):
     assert error_of(result.matches, pair.x, pair.y) < 0.3  # read the other way round it would be ~random
     assert result.resolution == RESOLUTION and result.features == "wks"
     assert {"features", "decimate", "solve", "check"} <= set(result.timings)
-    # the dense map: a target vertex for every full-resolution source vertex, the certified ones kept
+    # the dense map: a target vertex for every full-resolution source vertex, near the certified ones
     assert result.dense_map.dtype == np.int64 and result.dense_map.shape == (pair.x.mesh.n_verts,)
     assert result.p2p is result.dense_map and result.dense.vertex.shape == result.dense_map.shape
     assert result.dense_map.max() < pair.y.mesh.n_verts
-    np.testing.assert_array_equal(result.dense_map[result.matches[:, 0]], result.matches[:, 1])
+    details = result.details
+    low = (details.source, details.target, details.low_map)
+    agreement = certified_agreement(result.dense, pair.y.mesh, *low)
+    assert agreement["within_one_edge"] > 0.5
 
 
 def test_reversed_pair_swaps_the_roles(pair):

@@ -2,9 +2,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from spidermatch.dense import METHODS, DenseSettings, densify, feature_nearest_neighbours
+from spidermatch.dense import METHODS, DenseSettings, certified_agreement, densify, feature_nearest_neighbours
+from spidermatch.mesh import Mesh
 from spidermatch.metrics import consistency, geodesic_errors, vertex_map_consistency
-from spidermatch.remesh import decimate
+from spidermatch.remesh import Decimated, decimate
 from spidermatch.surface import closest_surface_points, surface_positions
 from spidermatch.synthetic import creature_pair_ground_truth, make_creature
 from spidermatch.zoomout import zoomout
@@ -65,7 +66,11 @@ def test_one_row_per_source_vertex_and_certified_matches_kept(creature_pair, wks
     n = x.mesh.n_verts
     assert dense.vertex.shape == (n,) and dense.face.shape == (n,) and dense.bary.shape == (n, 3)
     assert dense.vertex.dtype == np.int64 and dense.method == method
-    assert np.array_equal(dense.vertex[low_x.to_full], low_y.to_full[low_map])
+    if method == "deformation":  # the certified images are where it starts: it stays near them
+        agreement = certified_agreement(dense, y.mesh, low_x, low_y, low_map)
+        assert agreement["within_one_edge"] > 0.85 and agreement["mean_distance"] < 0.8
+    else:
+        assert np.array_equal(dense.vertex[low_x.to_full], low_y.to_full[low_map])
     assert np.allclose(dense.bary.sum(axis=1), 1.0) and (dense.bary >= -1e-12).all()
     assert (y.mesh.faces[dense.face] == dense.vertex[:, None]).any(axis=1).all()
 
@@ -80,6 +85,42 @@ def test_dense_map_beats_the_features_nearest_neighbours(creature_pair, wks_feat
     ours = consistency(x.mesh, y.mesh, dense.points(y.mesh), dense.face, dense.bary)
     theirs = vertex_map_consistency(x.mesh, y.mesh, nearest)
     assert ours.tears < theirs.tears and ours.flips < theirs.flips
+
+
+def test_deformation_is_smoother_and_more_accurate_than_independent_feature_matches(
+    creature_pair, wks_features
+):
+    x, y, low_x, low_y, low_map, truth = creature_pair
+    maps = {
+        method: densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features, DenseSettings(method)).vertex
+        for method in ("deformation", "interp_features")
+    }
+    refs = np.arange(0, x.mesh.n_verts, 3)
+    errors = geodesic_errors(maps, refs, truth[refs], y.mesh)
+    assert errors["deformation"].mean() < 0.9 * errors["interp_features"].mean()
+    ours, theirs = (vertex_map_consistency(x.mesh, y.mesh, maps[name]) for name in maps)
+    assert ours.tears < 0.9 * theirs.tears and ours.flipped < 0.8 * theirs.flipped
+
+
+def test_deformation_maps_a_shape_onto_itself_by_the_identity():
+    mesh = make_creature(1200, seed=2).mesh.centred()
+    low = decimate(mesh, 150)
+    identity = np.arange(low.mesh.n_verts)
+    features = np.random.default_rng(0).normal(size=(mesh.n_verts, 32))  # each vertex its own
+    settings = DenseSettings("deformation", smoothing=0)  # smoothing is tested with interp
+    dense = densify(mesh, mesh, low, low, identity, features, features, settings)
+    assert np.array_equal(dense.vertex, np.arange(mesh.n_verts))
+    assert np.abs(dense.points(mesh) - mesh.verts).max() < 1e-9 * np.sqrt(mesh.area)
+
+
+def test_deformation_gives_the_same_map_in_any_unit(creature_pair, wks_features):
+    """The rest shape is brought to the target's unit: a target in millimetres gets the same map."""
+    x, y, low_x, low_y, low_map, _ = creature_pair
+    plain = densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features)
+    big_y = Mesh(y.mesh.verts * 1000.0, y.mesh.faces, "big")
+    big_low_y = Decimated(Mesh(low_y.mesh.verts * 1000.0, low_y.mesh.faces, "low"), low_y.to_full)
+    scaled = densify(x.mesh, big_y, low_x, big_low_y, low_map, *wks_features)
+    assert np.mean(scaled.vertex == plain.vertex) > 0.99
 
 
 def test_zoomout_keeps_the_identity_of_a_shape_onto_itself():
