@@ -1,4 +1,4 @@
-"""The pictures of one match run: correspondence, SpiderCurve, error heat map and HTML viewer."""
+"""The pictures of one match run: correspondence, SpiderCurve, texture, error heat map and HTML viewer."""
 
 from __future__ import annotations
 
@@ -132,7 +132,10 @@ def write_match_pictures(
     errors: tuple[np.ndarray, np.ndarray] | None = None,
     viewer: bool = True,
 ) -> list[Path]:
-    """Write ``correspondence.png``, ``spider_curve.png``, ``error.png`` (with errors) and ``viewer.html``.
+    """Write the PNGs and ``viewer.html`` of a match.
+
+    ``correspondence.png``, ``spider_curve.png``, ``texture.png`` (with a dense map),
+    ``error.png`` (with errors) and ``viewer.html``.
 
     Parameters
     ----------
@@ -148,7 +151,7 @@ def write_match_pictures(
     list of Path
         The files written.
     """
-    from spidermatch.plot import save_correspondence_png, save_curve_png, save_error_png
+    from spidermatch.plot import save_correspondence_png, save_curve_png, save_error_png, save_texture_png
 
     output_dir = Path(output_dir)
     p, errors = for_display(pictures, errors)
@@ -161,6 +164,9 @@ def write_match_pictures(
         ),
         ("spider_curve.png", save_curve_png, (p.low_source, p.curve_vertices), ("", p.status)),
     ]
+    if np.asarray(p.matches).ndim == 1:  # a dense map: the texture transfer too
+        labels = (p.title, p.status, p.target_covered)
+        jobs.append(("texture.png", save_texture_png, (p.source, p.target, p.matches), labels))
     if errors is not None:
         jobs.append(("error.png", save_error_png, (p.source, *errors), (p.title, p.status)))
     if viewer:

@@ -58,6 +58,28 @@ def position_colours(verts: np.ndarray) -> np.ndarray:
     return hsl_to_rgb(hue, np.full_like(hue, 0.85), 0.3 + 0.42 * height)
 
 
+CHECKER_CELLS = 14
+"""Checkerboard cells along the longest side of a shape's bounding box (texture pictures)."""
+
+CHECKER_DARK = 0.25
+"""Brightness of the dark checkerboard cells relative to the light ones."""
+
+
+def checker_colours(verts: np.ndarray, cells: int = CHECKER_CELLS) -> np.ndarray:
+    """A 3-D checkerboard over :func:`position_colours`, shape (V, 3): a texture to carry through a map.
+
+    Cells are cubes of the bounding box's longest side over ``cells``; a vertex is in a dark
+    cell when the sum of its three cell indices is odd. A smooth map carries the squares
+    across whole; a fold or tear breaks them into speckle. The position colours underneath
+    still show a left-right swap.
+    """
+    verts = np.asarray(verts, dtype=np.float64)
+    low = verts.min(axis=0)
+    size = max(float(np.ptp(verts, axis=0).max()), 1e-12) / cells
+    odd = np.floor((verts - low) / size).astype(np.int64).sum(axis=1) % 2 == 1
+    return position_colours(verts) * np.where(odd, CHECKER_DARK, 1.0)[:, None]
+
+
 def hsl_to_rgb(hue: np.ndarray, saturation: np.ndarray, lightness: np.ndarray) -> np.ndarray:
     """Convert HSL (each (V,), in [0, 1]) to RGB, shape (V, 3)."""
     amplitude = saturation * np.minimum(lightness, 1 - lightness)
@@ -383,9 +405,34 @@ def save_correspondence_png(
     target_covered : np.ndarray, shape (V_tgt,) bool, optional
         The region a partial source covers; the rest of the target is greyed out.
     """
-    colours_x = position_colours(source.verts)
-    colours_y = greyed_uncovered(transfer_colours(colours_x, target, matches), target_covered)
     dense = np.asarray(matches).ndim == 1
+    what = "dense map" if dense else f"{len(np.asarray(matches))} matches, nearest-match fill"
+    colours = position_colours(source.verts)
+    return _save_transfer_png(source, target, matches, colours, path, title, status, what, target_covered)
+
+
+def save_texture_png(
+    source: Mesh,
+    target: Mesh,
+    matches: np.ndarray,
+    path: str | os.PathLike,
+    title: str = "",
+    status: str = "",
+    target_covered: np.ndarray | None = None,
+) -> Path:
+    """Texture transfer: a checkerboard on the source (:func:`checker_colours`) carried to the target.
+
+    Parameters as :func:`save_correspondence_png`, with a dense map (V_src,): each target
+    vertex takes the mean colour of the source vertices mapped to it.
+    """
+    what = "texture transfer: a checkerboard carried through the dense map"
+    colours = checker_colours(source.verts)
+    return _save_transfer_png(source, target, matches, colours, path, title, status, what, target_covered)
+
+
+def _save_transfer_png(source, target, matches, colours_x, path, title, status, what, target_covered) -> Path:
+    """Source and target from both sides: the source in ``colours_x`` (V_src, 3), the target mapped."""
+    colours_y = greyed_uncovered(transfer_colours(colours_x, target, matches), target_covered)
     views_x, views_y = mesh_views(source), mesh_views(target)
     panels = [
         (source, colours_x, views_x[0], f"source, {views_x[0].label}"),
@@ -393,7 +440,6 @@ def save_correspondence_png(
         (source, colours_x, views_x[1], f"source, {views_x[1].label}"),
         (target, colours_y, views_y[1], f"target, {views_y[1].label}"),
     ]
-    what = "dense map" if dense else f"{len(np.asarray(matches))} matches, nearest-match fill"
     if target_covered is not None:
         what += ", grey: target not covered"
     return _render_panels(panels, title, f"{status} | {what}" if status else what, path)

@@ -22,6 +22,7 @@ import numpy as np
 from spidermatch.mesh import Mesh
 from spidermatch.plot import (
     ERROR_UNITS,
+    checker_colours,
     error_colours,
     greyed_uncovered,
     mesh_views,
@@ -34,6 +35,7 @@ logger = logging.getLogger(__name__)
 
 TEMPLATE = Path(__file__).with_name("viewer_template.html")
 TRANSFER_LAYER = "colour transfer"
+TEXTURE_LAYER = "texture"
 ERROR_LAYER = "error"
 
 
@@ -162,6 +164,12 @@ def save_match_viewer(
     transferred = transfer_colours(colours_x, target, matches)
     layers_y = {TRANSFER_LAYER: greyed_uncovered(transferred, target_covered)}
     notes = {TRANSFER_LAYER: "source coloured by position (hue: around the vertical axis, light: height)"}
+    if np.asarray(matches).ndim == 1:  # a dense map: a checkerboard carried across
+        layers_x[TEXTURE_LAYER] = checker_colours(source.verts)
+        layers_y[TEXTURE_LAYER] = greyed_uncovered(
+            transfer_colours(layers_x[TEXTURE_LAYER], target, matches), target_covered
+        )
+        notes[TEXTURE_LAYER] = "texture transfer: a checkerboard on the source carried through the dense map"
     if errors is not None:
         per_vertex = spread_to_vertices(source, errors[0], np.asarray(errors[1], dtype=np.float64))[:, 0]
         layers_x[ERROR_LAYER] = error_colours(per_vertex, vmax)

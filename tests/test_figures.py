@@ -35,7 +35,7 @@ def test_pictures_use_the_dense_map_when_the_result_has_one(tmp_path, pair):
     pairs = np.stack([low.to_full, truth[low.to_full]], axis=1)
     _write_pngs(tmp_path, fake_result(low, pairs, dense_map=truth), inputs, report)
     names = {path.name for path in tmp_path.iterdir()}
-    assert names == {"correspondence.png", "spider_curve.png", "error.png", "viewer.html"}
+    assert names == {"correspondence.png", "spider_curve.png", "texture.png", "error.png", "viewer.html"}
     # the exact dense map has zero error at every reference point
     assert "mean 0.0000" in (tmp_path / "viewer.html").read_text()
 

@@ -6,6 +6,7 @@ from scipy.spatial import cKDTree
 from spidermatch.mesh import Mesh
 from spidermatch.plot import (
     View,
+    checker_colours,
     greyed_uncovered,
     map_pairs,
     occluded,
@@ -14,6 +15,7 @@ from spidermatch.plot import (
     save_correspondence_png,
     save_curve_png,
     save_error_png,
+    save_texture_png,
     short_label,
     spread_to_vertices,
     title_lines,
@@ -160,6 +162,24 @@ def test_correspondence_png_fills_its_panels(tmp_path, creatures, form):
     )
     assert path.stat().st_size > 10_000
     assert coloured_rows(path) > 0.6
+
+
+def test_a_checkerboard_crosses_a_smooth_map_whole_and_a_scrambled_one_as_speckle(tmp_path):
+    source = icosphere(4)  # 2562 vertices: a cell spans several edges
+    checker = checker_colours(source.verts, cells=4)
+    dark = checker.max(axis=1) < position_colours(source.verts).max(axis=1) * 0.5
+    assert 0.3 < dark.mean() < 0.7  # about half the surface in dark cells
+    identity = np.arange(source.n_verts)
+    np.testing.assert_allclose(transfer_colours(checker, source, identity), checker)
+    scrambled = np.random.default_rng(0).permutation(source.n_verts)
+
+    def broken_edges(colours):  # edges whose two ends fall in cells of different shade
+        shade = colours.max(axis=1) < position_colours(source.verts).max(axis=1) * 0.5
+        return np.mean(shade[source.edges[:, 0]] != shade[source.edges[:, 1]])
+
+    assert broken_edges(transfer_colours(checker, source, scrambled)) > 2 * broken_edges(checker)
+    path = save_texture_png(source, source, identity, tmp_path / "t.png", "texture", "optimal")
+    assert path.stat().st_size > 10_000 and coloured_rows(path) > 0.6
 
 
 def test_the_target_region_a_part_does_not_cover_is_drawn_grey(tmp_path, creatures):

@@ -93,7 +93,7 @@ def test_viewer_error_layer_and_a_title_that_could_break_the_page(tmp_path, crea
     path = save_match_viewer(source, target, truth, tmp_path / "v.html", title, "feasible", errors=errors)
     data = page_data(path)
     assert data["title"] == title
-    assert data["layer_names"] == ["colour transfer", "error"]
+    assert data["layer_names"] == ["colour transfer", "texture", "error"]  # a dense map: the texture too
     assert "mean 0.1500" in data["layer_notes"]["error"]
     assert path.read_text().count("<script") == 2
 
