@@ -20,6 +20,7 @@ from scipy.spatial import cKDTree
 
 from spidermatch.dense import mean_incident_edge_length
 from spidermatch.mesh import Mesh, MeshError, face_edges, vertex_fans
+from spidermatch.surface import occluded
 
 logger = logging.getLogger(__name__)
 
@@ -173,8 +174,6 @@ def view_cut(mesh: Mesh, direction: np.ndarray, name: str) -> PartialShape:
         Viewing direction (from the camera into the scene).
 
     """
-    from spidermatch.plot import occluded
-
     forward = np.asarray(direction, dtype=float)
     forward = forward / np.linalg.norm(forward)
     helper = np.eye(3)[np.argmin(np.abs(forward))]

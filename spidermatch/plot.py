@@ -19,6 +19,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from spidermatch.mesh import Mesh
+from spidermatch.surface import occluded
 
 logger = logging.getLogger(__name__)
 
@@ -496,42 +497,6 @@ def save_error_png(
 
 CURVE_COLOUR = "#c4161c"
 CURVE_PIECES_PER_EDGE = 4
-
-
-def occluded(points: np.ndarray, camera: np.ndarray, faces: np.ndarray, tolerance: float) -> np.ndarray:
-    """Which points lie behind the surface, as seen by the camera.
-
-    Parameters
-    ----------
-    points : np.ndarray, shape (P, 3)
-        Camera coordinates (z towards the camera).
-    camera : np.ndarray, shape (V, 3)
-        Camera coordinates of the mesh vertices.
-    faces : np.ndarray, shape (F, 3)
-    tolerance : float
-        Depth margin, so that points on the surface are not hidden by their own triangles.
-
-    Returns
-    -------
-    np.ndarray, shape (P,), bool
-        True where some triangle covers the point and is nearer the camera by more than ``tolerance``.
-    """
-    corner, edge_u, edge_v = camera[faces[:, 0]], camera[faces[:, 1]], camera[faces[:, 2]]
-    edge_u, edge_v = edge_u - corner, edge_v - corner
-    det = edge_u[:, 0] * edge_v[:, 1] - edge_u[:, 1] * edge_v[:, 0]
-    usable = np.abs(det) > 1e-14
-    corner, edge_u, edge_v, det = corner[usable], edge_u[usable], edge_v[usable], det[usable]
-    hidden = np.zeros(len(points), dtype=bool)
-    for start in range(0, len(points), 256):
-        chunk = points[start : start + 256]
-        dx = chunk[:, None, 0] - corner[None, :, 0]
-        dy = chunk[:, None, 1] - corner[None, :, 1]
-        u = (dx * edge_v[:, 1] - dy * edge_v[:, 0]) / det
-        v = (edge_u[:, 0] * dy - edge_u[:, 1] * dx) / det
-        depth = corner[:, 2] + u * edge_u[:, 2] + v * edge_v[:, 2]
-        covered = (u >= 0) & (v >= 0) & (u + v <= 1) & (depth > chunk[:, None, 2] + tolerance)
-        hidden[start : start + 256] = covered.any(axis=1)
-    return hidden
 
 
 def _curve_pieces(mesh: Mesh, curve_vertices: np.ndarray) -> np.ndarray:

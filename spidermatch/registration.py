@@ -40,6 +40,8 @@ class ArapSystem:
         Both directions of every edge.
     weights : np.ndarray, shape (2E,)
         Clamped cotangent weight of each directed edge.
+    gather : scipy.sparse.csr_matrix, shape (V, 2E)
+        Sums weighted per-edge values into their head vertex (``weights`` at (head, edge)).
     goal_weights : np.ndarray, shape (V,)
         Weight of each vertex's goal.
     factor : scipy.sparse.linalg.SuperLU
@@ -51,6 +53,7 @@ class ArapSystem:
     heads: np.ndarray
     tails: np.ndarray
     weights: np.ndarray
+    gather: sp.csr_matrix
     goal_weights: np.ndarray
     factor: object
 
@@ -95,7 +98,9 @@ def arap_system(rest: np.ndarray, faces: np.ndarray, goal_weights: np.ndarray) -
     adjacency = sp.coo_matrix((weights, (heads, tails)), shape=(n, n)).tocsr()
     laplacian = sp.diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency
     matrix = (2.0 * laplacian + sp.diags(np.asarray(goal_weights, dtype=np.float64))).tocsc()
-    return ArapSystem(rest, heads, tails, weights, np.asarray(goal_weights, np.float64), splu(matrix))
+    gather = sp.csr_matrix((weights, (heads, np.arange(len(heads)))), shape=(n, len(heads)))
+    goal_weights = np.asarray(goal_weights, np.float64)
+    return ArapSystem(rest, heads, tails, weights, gather, goal_weights, splu(matrix))
 
 
 def best_rotations(system: ArapSystem, positions: np.ndarray) -> np.ndarray:
@@ -124,9 +129,7 @@ def fit(system: ArapSystem, goals: np.ndarray, start: np.ndarray, rounds: int) -
     for _ in range(rounds):
         rotations = best_rotations(system, positions)
         mean_rotation = 0.5 * (rotations[system.heads] + rotations[system.tails])
-        turned = system.weights[:, None] * np.einsum("nab,nb->na", mean_rotation, rest_edges)
-        rhs = np.zeros_like(positions)
-        np.add.at(rhs, system.heads, turned)
-        rhs = 2.0 * rhs + pulled
+        turned = np.einsum("nab,nb->na", mean_rotation, rest_edges)
+        rhs = 2.0 * np.asarray(system.gather @ turned) + pulled
         positions = np.column_stack([system.factor.solve(rhs[:, axis]) for axis in range(3)])
     return positions

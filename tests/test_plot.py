@@ -9,7 +9,6 @@ from spidermatch.plot import (
     checker_colours,
     greyed_uncovered,
     map_pairs,
-    occluded,
     position_colours,
     project,
     save_correspondence_png,
@@ -21,6 +20,7 @@ from spidermatch.plot import (
     title_lines,
     transfer_colours,
 )
+from spidermatch.surface import occluded
 from spidermatch.synthetic import creature_pair_ground_truth, make_creature
 
 
