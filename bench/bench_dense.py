@@ -43,26 +43,31 @@ from spidermatch.dense import DenseSettings, certified_agreement, densify, featu
 from spidermatch.evaluate import sparse_map_errors
 from spidermatch.mesh import Mesh
 from spidermatch.metrics import consistency, geodesic_errors, vertex_map_consistency
+from spidermatch.pipeline import MatchError
 from spidermatch.remesh import Decimated
 
 VAL_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
 
-# Variant name -> DenseSettings keywords (the ones not given are DenseSettings' defaults).
-NARROW = dict(radius=1.0, distance_weight=1.0, n_neighbours=32)  # the earlier interp_features settings
+# Variant name -> DenseSettings keywords (the ones not given are DenseSettings' defaults). The
+# variants before the deformation round to the nearest corner (unfold=False), as they did.
+NARROW = dict(radius=1.0, distance_weight=1.0, n_neighbours=32, unfold=False)  # earlier interp_features
+OLD = dict(unfold=False)
 VARIANTS = {
     "deformation": dict(method="deformation"),
+    "deformation_nearest": dict(method="deformation", unfold=False),
     "deformation_s0": dict(method="deformation", smoothing=0),
-    "interp": dict(method="interp", smoothing=0),
-    "interp_s3": dict(method="interp", smoothing=3),
+    "interp": dict(method="interp", smoothing=0, **OLD),
+    "interp_s3": dict(method="interp", smoothing=3, **OLD),
     "interp_features": dict(method="interp_features", smoothing=0, **NARROW),
     "interp_features_s3": dict(method="interp_features", smoothing=3, **NARROW),
-    "features_r2_s3": dict(method="interp_features", smoothing=3),
-    "features_r3_s3": dict(method="interp_features", smoothing=3, radius=3.0),
-    "zoomout": dict(method="zoomout", smoothing=0),
-    "zoomout_local": dict(method="zoomout_local", smoothing=0, radius=1.0, n_neighbours=32),
-    "zoomout_local_s3": dict(method="zoomout_local", smoothing=3, radius=1.0, n_neighbours=32),
-    "zoomout_accept_s3": dict(method="zoomout_accept", smoothing=3, radius=1.0),
-    "zoomout_s3": dict(method="zoomout", smoothing=3),
+    "features_r2_s3": dict(method="interp_features", smoothing=3, **OLD),
+    "features_r2_s3_unfolded": dict(method="interp_features", smoothing=3),
+    "features_r3_s3": dict(method="interp_features", smoothing=3, radius=3.0, **OLD),
+    "zoomout": dict(method="zoomout", smoothing=0, **OLD),
+    "zoomout_local": dict(method="zoomout_local", smoothing=0, radius=1.0, n_neighbours=32, **OLD),
+    "zoomout_local_s3": dict(method="zoomout_local", smoothing=3, radius=1.0, n_neighbours=32, **OLD),
+    "zoomout_accept_s3": dict(method="zoomout_accept", smoothing=3, radius=1.0, **OLD),
+    "zoomout_s3": dict(method="zoomout", smoothing=3, **OLD),
 }
 FIGURES = ("tears", "flipped", "degenerate")
 FIELDS = (
@@ -92,13 +97,21 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--cache", default=os.path.expanduser("~/.cache/spidermatch/bench_dense"))
     parser.add_argument("--certify-only", action="store_true", help="fill the cache and stop")
+    parser.add_argument(
+        "--time-limit", type=float, default=300.0, help="solver seconds per pair (a pair not certified stops)"
+    )
+    parser.add_argument("--strategy", default="colgen", help="solver strategy (MatchSettings.strategy)")
     parser.add_argument("--out", default=None, help="default: bench/results/dense_map_faust_val_<resolution>")
     args = parse_checked(parser, argv)
     overrides = {key: _number(value) for key, value in (item.split("=", 1) for item in args.set)}
     rows = []
     for text in args.pairs:
         pair = tuple(text.split(":"))
-        certified = certified_pair(args, pair)
+        try:
+            certified = certified_pair(args, pair)
+        except MatchError as error:
+            print(f"{text}: skipped, no matching ({error})", flush=True)
+            continue
         if args.certify_only:
             print(f"{text}: certified ({certified['status']}, {certified['solve_s']:.1f} s)", flush=True)
             continue
@@ -157,11 +170,18 @@ def certified_pair(args, pair: tuple[str, str]) -> dict:
 def _certify(args, pair: tuple[str, str], path: Path) -> None:
     """Features, decimation and the certified solve of one pair, saved to ``path``."""
     from spidermatch.pipeline import MatchSettings, match
+    from spidermatch.solve.highs import SolverOptions
 
     x, y, feat_x, feat_y = load_pair_with_features(
         args.data, pair, args.features, args.checkpoint, args.adapt_steps
     )
-    result = match(x.mesh, y.mesh, feat_x, feat_y, MatchSettings(resolution=args.resolution, dense=None))
+    settings = MatchSettings(
+        resolution=args.resolution,
+        dense=None,
+        strategy=args.strategy,
+        solver=SolverOptions(time_limit=args.time_limit),
+    )
+    result = match(x.mesh, y.mesh, feat_x, feat_y, settings)
     result.raise_for_status()
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez(

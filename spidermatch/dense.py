@@ -61,7 +61,7 @@ from scipy.spatial import cKDTree
 
 from spidermatch.coarse import coarse_labels, faces_by_label, project_onto_coarse, ring_faces
 from spidermatch.costs import unit_rows
-from spidermatch.mesh import Mesh, principal_axes
+from spidermatch.mesh import Mesh, mean_incident_edge_length, principal_axes
 from spidermatch.remesh import Decimated
 from spidermatch.surface import (
     closest_triangle_points,
@@ -71,6 +71,7 @@ from spidermatch.surface import (
     surface_positions,
     vertex_points,
 )
+from spidermatch.unfold import unfolded_vertices
 from spidermatch.values import is_finite, is_whole
 
 logger = logging.getLogger(__name__)
@@ -133,6 +134,9 @@ class DenseSettings:
         ``deformation``: rounds of feature matching and fitting.
     inverse : bool
         Also map every target vertex back onto the source (:func:`inverse_map`).
+    unfold : bool
+        Round the image points to target vertices without folds where a neighbouring vertex
+        avoids one (:mod:`spidermatch.unfold`); else each takes its nearest corner.
 
     """
 
@@ -148,6 +152,7 @@ class DenseSettings:
     fit_weight: float = 0.1
     deformation_rounds: int = 6
     inverse: bool = False
+    unfold: bool = True
 
     def __post_init__(self) -> None:
         problems = settings_problems(asdict(self))
@@ -186,8 +191,9 @@ def settings_problems(values: Mapping) -> list[str]:
     if "method" in values and values["method"] not in METHODS:
         choices = ", ".join(METHODS)
         problems.append(f"method={values['method']!r}: unknown dense method; choose from {choices}")
-    if "inverse" in values and not isinstance(values["inverse"], bool):
-        problems.append(f"inverse={values['inverse']!r}: must be true or false")
+    for key in ("inverse", "unfold"):
+        if key in values and not isinstance(values[key], bool):
+            problems.append(f"{key}={values[key]!r}: must be true or false")
     for key, least in WHOLE_SETTINGS.items():
         if key in values and (not is_whole(values[key]) or values[key] < least):
             problems.append(f"{key}={values[key]!r}: must be a whole number >= {least}")
@@ -232,7 +238,8 @@ class DenseMap:
     Attributes
     ----------
     vertex : np.ndarray, shape (V_X,), int64
-        Target vertex of each original source vertex.
+        Target vertex of each original source vertex: a corner of its image point's face,
+        or with ``DenseSettings.unfold`` a neighbour of one where that avoids a fold.
     face : np.ndarray, shape (V_X,), int64
         Target face containing each image point.
     bary : np.ndarray, shape (V_X, 3), float64
@@ -321,7 +328,7 @@ def densify(
         dense = DenseMap(vertex, face, bary, settings.method)
         if settings.smoothing > 0:
             dense = smoothed(dense, source, target, np.zeros(0, dtype=np.int64), settings.smoothing)
-        return _with_inverse(dense, source, target, settings)
+        return _with_inverse(_rounded(dense, source, target, settings), source, target, settings)
     else:
         start = nearest_corner(target, face, bary)
         candidates = None
@@ -340,7 +347,18 @@ def densify(
     if settings.smoothing > 0:
         dense = smoothed(dense, source, target, low_x.to_full, settings.smoothing)
         dense = pin_certified(dense, target, low_x, low_y, low_map)
+    dense = _rounded(dense, source, target, settings, fixed=low_x.to_full)
     return _with_inverse(dense, source, target, settings)
+
+
+def _rounded(
+    dense: DenseMap, source: Mesh, target: Mesh, settings: DenseSettings, fixed: np.ndarray | None = None
+) -> DenseMap:
+    """``dense`` with its vertices unfolded (:func:`spidermatch.unfold.unfolded_vertices`) if asked."""
+    if not settings.unfold:
+        return dense
+    vertex = unfolded_vertices(source, target, dense.vertex, dense.points(target), fixed)
+    return DenseMap(vertex, dense.face, dense.bary, dense.method, dense.covered, dense.inverse)
 
 
 def _with_inverse(dense: DenseMap, source: Mesh, target: Mesh, settings: DenseSettings) -> DenseMap:
@@ -562,14 +580,6 @@ def _nearest_in_own_patches(projected, labels, points, images) -> np.ndarray:
         index = cKDTree(projected[vertices]).query(points[row], k=k)[1].reshape(len(row), k)
         near[row, slot, :k] = vertices[index]
     return near.reshape(len(points), images.shape[1] * NEAR_VERTICES)  # also for no points
-
-
-def mean_incident_edge_length(mesh: Mesh) -> np.ndarray:
-    """Mean length of the edges at each vertex, shape (V,)."""
-    edges = mesh.edges
-    total = np.bincount(edges.reshape(-1), np.repeat(mesh.edge_lengths, 2), minlength=mesh.n_verts)
-    count = np.bincount(edges.reshape(-1), minlength=mesh.n_verts)
-    return total / np.maximum(count, 1)
 
 
 def local_candidates(

@@ -468,3 +468,11 @@ def make_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>", notes:
         logger.warning("%s", note)
         notes += (note,)
     return Mesh(np.asarray(verts, dtype=np.float64), faces, name, notes)
+
+
+def mean_incident_edge_length(mesh: Mesh) -> np.ndarray:
+    """Mean length of the edges at each vertex, shape (V,)."""
+    edges = mesh.edges
+    total = np.bincount(edges.reshape(-1), np.repeat(mesh.edge_lengths, 2), minlength=mesh.n_verts)
+    count = np.bincount(edges.reshape(-1), minlength=mesh.n_verts)
+    return total / np.maximum(count, 1)

@@ -18,8 +18,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
-from spidermatch.dense import mean_incident_edge_length
-from spidermatch.mesh import Mesh, MeshError, face_edges, vertex_fans
+from spidermatch.mesh import Mesh, MeshError, face_edges, mean_incident_edge_length, vertex_fans
 from spidermatch.surface import occluded
 
 logger = logging.getLogger(__name__)

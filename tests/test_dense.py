@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from spidermatch.coarse import vertex_rings
 from spidermatch.dense import METHODS, DenseSettings, certified_agreement, densify, feature_nearest_neighbours
 from spidermatch.mesh import Mesh
 from spidermatch.metrics import consistency, geodesic_errors, vertex_map_consistency
@@ -72,7 +73,9 @@ def test_one_row_per_source_vertex_and_certified_matches_kept(creature_pair, wks
     else:
         assert np.array_equal(dense.vertex[low_x.to_full], low_y.to_full[low_map])
     assert np.allclose(dense.bary.sum(axis=1), 1.0) and (dense.bary >= -1e-12).all()
-    assert (y.mesh.faces[dense.face] == dense.vertex[:, None]).any(axis=1).all()
+    # The vertex is a corner of the image point's face or, unfolded, a neighbour of one.
+    rings = vertex_rings(y.mesh)[y.mesh.faces[dense.face]].reshape(n, -1)
+    assert (rings == dense.vertex[:, None]).any(axis=1).all()
 
 
 def test_dense_map_beats_the_features_nearest_neighbours(creature_pair, wks_features):
@@ -121,6 +124,23 @@ def test_deformation_gives_the_same_map_in_any_unit(creature_pair, wks_features)
     big_low_y = Decimated(Mesh(low_y.mesh.verts * 1000.0, low_y.mesh.faces, "low"), low_y.to_full)
     scaled = densify(x.mesh, big_y, low_x, big_low_y, low_map, *wks_features)
     assert np.mean(scaled.vertex == plain.vertex) > 0.99
+
+
+def test_unfolding_leaves_fewer_flipped_image_triangles_and_keeps_the_fixed_vertices(
+    creature_pair, wks_features
+):
+    from spidermatch.unfold import unfolded_vertices
+
+    x, y, low_x, low_y, low_map, truth = creature_pair
+    rounded = densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features, DenseSettings(unfold=False))
+    points = rounded.points(y.mesh)
+    unfolded = unfolded_vertices(x.mesh, y.mesh, rounded.vertex, points, fixed=low_x.to_full)
+    before, after = (vertex_map_consistency(x.mesh, y.mesh, v) for v in (rounded.vertex, unfolded))
+    assert after.flipped < 0.5 * before.flipped
+    np.testing.assert_array_equal(unfolded[low_x.to_full], rounded.vertex[low_x.to_full])
+    refs = np.arange(0, x.mesh.n_verts, 3)
+    errors = geodesic_errors({"before": rounded.vertex, "after": unfolded}, refs, truth[refs], y.mesh)
+    assert errors["after"].mean() < errors["before"].mean() + 0.005  # a neighbour, not a jump
 
 
 def test_zoomout_keeps_the_identity_of_a_shape_onto_itself():
