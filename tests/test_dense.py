@@ -116,6 +116,29 @@ def test_deformation_maps_a_shape_onto_itself_by_the_identity():
     assert np.abs(dense.points(mesh) - mesh.verts).max() < 1e-9 * np.sqrt(mesh.area)
 
 
+def test_inverse_and_coverage_of_a_shape_onto_itself_and_of_a_half():
+    from spidermatch.dense import DenseMap, inverse_map
+    from spidermatch.dense_report import target_coverage
+    from spidermatch.surface import vertex_points
+
+    mesh = make_creature(1200, seed=2).mesh.centred()
+    identity = DenseMap(np.arange(mesh.n_verts), *vertex_points(mesh, np.arange(mesh.n_verts)), "identity")
+    inverse = inverse_map(identity, mesh, mesh)
+    assert np.mean(inverse.vertex == np.arange(mesh.n_verts)) > 0.99 and inverse.gap.max() < 1e-9
+    assert target_coverage(identity, mesh, mesh) == {
+        "reached_vertices": 1.0,
+        "covered_area": 1.0,
+        "mean_gap": 0.0,
+    }
+    # Everything sent to the upper half: the lower half is neither reached nor covered.
+    upper = mesh.verts[:, 1] >= np.median(mesh.verts[:, 1])
+    upper_vertices = np.flatnonzero(upper)
+    nearest_upper = upper_vertices[cKDTree(mesh.verts[upper]).query(mesh.verts)[1]]
+    folded = DenseMap(nearest_upper, *vertex_points(mesh, nearest_upper), "folded")
+    coverage = target_coverage(folded, mesh, mesh)
+    assert coverage["reached_vertices"] <= upper.mean() and 0.3 < coverage["covered_area"] < 0.8
+
+
 def test_deformation_gives_the_same_map_in_any_unit(creature_pair, wks_features):
     """The rest shape is brought to the target's unit: a target in millimetres gets the same map."""
     x, y, low_x, low_y, low_map, _ = creature_pair
