@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -97,6 +97,9 @@ RADIUS_SHRINK = 0.7
 
 LEAST_RADIUS = 0.5
 """``deformation``: the smallest feature search radius, in local low-resolution edge lengths."""
+
+LEAST_NEIGHBOURS = 16
+"""``deformation``: the fewest target vertices searched per point once the radius has shrunk."""
 
 ROTATION_ROUNDS = 5
 """``deformation``: alternations of rotations and positions in each as-rigid-as-possible fit."""
@@ -423,7 +426,12 @@ def deformed_points(
     system = arap_system(source.verts * rest_scale, source.faces, goal_weights)
     radius = settings.radius
     for _ in range(settings.deformation_rounds):
-        matches = feature_refined_vertices(target, points, radius * local_edge, *features, settings)
+        # A smaller disc holds fewer vertices: search as many as cover it (the area's share).
+        share = (radius / settings.radius) ** 2
+        searched = replace(
+            settings, n_neighbours=max(LEAST_NEIGHBOURS, int(np.ceil(settings.n_neighbours * share)))
+        )
+        matches = feature_refined_vertices(target, points, radius * local_edge, *features, searched)
         fitted = fit(system, target.verts[matches], points, ROTATION_ROUNDS)
         # Projected near the vertex's own match only: a free projection jumps to another
         # body part where two parts nearly touch.
