@@ -64,8 +64,8 @@ class Operators:
         return int(self.evals.shape[0])
 
 
-def cotangent_laplacian(verts: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
-    """Cotangent Laplacian ``L = D - W`` with ``W_ij = (cot a_ij + cot b_ij) / 2``.
+def cotangent_weights(verts: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
+    """Edge weights ``W_ij = (cot a_ij + cot b_ij) / 2`` (a, b the angles opposite edge ij).
 
     Parameters
     ----------
@@ -75,7 +75,7 @@ def cotangent_laplacian(verts: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
     Returns
     -------
     scipy.sparse.csr_matrix, shape (V, V)
-        Symmetric, zero row sums, positive semi-definite for Delaunay meshes.
+        Symmetric, zero diagonal; negative at edges opposite obtuse angles.
 
     """
     n = verts.shape[0]
@@ -88,9 +88,26 @@ def cotangent_laplacian(verts: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
         rows += [i, j]
         cols += [j, i]
         weights += [0.5 * cot, 0.5 * cot]
-    off_diag = sp.coo_matrix(
+    return sp.coo_matrix(
         (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
     ).tocsr()
+
+
+def cotangent_laplacian(verts: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
+    """Cotangent Laplacian ``L = D - W`` with ``W`` the :func:`cotangent_weights`.
+
+    Parameters
+    ----------
+    verts : np.ndarray, shape (V, 3)
+    faces : np.ndarray, shape (F, 3)
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix, shape (V, V)
+        Symmetric, zero row sums, positive semi-definite for Delaunay meshes.
+
+    """
+    off_diag = cotangent_weights(verts, faces)
     degree = np.asarray(off_diag.sum(axis=1)).ravel()
     return (sp.diags(degree) - off_diag).tocsr()
 

@@ -24,6 +24,11 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
+from spidermatch.operators import cotangent_weights
+
+PRIOR_WEIGHT = 1e-3
+"""Pull of a vertex's previous rotation, relative to its ring's weighted squared rest edge lengths."""
+
 MIN_EDGE_WEIGHT = 1e-3
 """Lower bound of the cotangent weights (an obtuse corner's negative weight would reward stretching)."""
 
@@ -67,23 +72,11 @@ def directed_cotangent_weights(verts: np.ndarray, faces: np.ndarray) -> tuple[np
     weights : np.ndarray, shape (2E,)
 
     """
-    n = len(verts)
-    heads, tails, halves = [], [], []
-    for k in range(3):
-        i, j, opposite = faces[:, (k + 1) % 3], faces[:, (k + 2) % 3], faces[:, k]
-        u, v = verts[i] - verts[opposite], verts[j] - verts[opposite]
-        cot = np.einsum("ij,ij->i", u, v) / np.maximum(np.linalg.norm(np.cross(u, v), axis=1), 1e-12)
-        heads += [i, j]
-        tails += [j, i]
-        halves += [0.5 * cot, 0.5 * cot]
-    summed = sp.coo_matrix(
-        (np.concatenate(halves), (np.concatenate(heads), np.concatenate(tails))), shape=(n, n)
-    ).tocoo()
-    summed.sum_duplicates()
+    weights = cotangent_weights(verts, faces).tocoo()
     return (
-        summed.row.astype(np.int64),
-        summed.col.astype(np.int64),
-        np.maximum(summed.data, MIN_EDGE_WEIGHT),
+        weights.row.astype(np.int64),
+        weights.col.astype(np.int64),
+        np.maximum(weights.data, MIN_EDGE_WEIGHT),
     )
 
 
@@ -103,19 +96,34 @@ def arap_system(rest: np.ndarray, faces: np.ndarray, goal_weights: np.ndarray) -
     return ArapSystem(rest, heads, tails, weights, gather, goal_weights, splu(matrix))
 
 
-def best_rotations(system: ArapSystem, positions: np.ndarray) -> np.ndarray:
-    """The rotation of each vertex's rest ring that best matches its ring at ``positions``, (V, 3, 3)."""
+def best_rotations(system: ArapSystem, positions: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    """The rotation of each vertex's rest ring that best matches its ring at ``positions``, (V, 3, 3).
+
+    A ring whose edges at ``positions`` are collapsed or collinear does not decide its
+    rotation; a small pull (:data:`PRIOR_WEIGHT` of the ring's rest size) towards the
+    vertex's ``previous`` rotation (V, 3, 3) decides it, the same way in any frame (turning
+    the positions turns the result, so the fit does not depend on the target's pose).
+    """
     rest_edges = system.rest[system.heads] - system.rest[system.tails]
     edges = positions[system.heads] - positions[system.tails]
-    covariance = np.zeros((len(positions), 3, 3))
-    np.add.at(
-        covariance, system.heads, system.weights[:, None, None] * rest_edges[:, :, None] * edges[:, None, :]
-    )
+    outer = (rest_edges[:, :, None] * edges[:, None, :]).reshape(-1, 9)
+    covariance = np.asarray(system.gather @ outer).reshape(-1, 3, 3)
+    ring_size = np.asarray(system.gather @ np.einsum("nd,nd->n", rest_edges, rest_edges))
+    covariance += PRIOR_WEIGHT * ring_size[:, None, None] * np.transpose(previous, (0, 2, 1))
     left, _, right_t = np.linalg.svd(covariance)
     # R = V U^T, with the sign of the last singular direction turned where that would reflect.
     reflect = np.linalg.det(np.einsum("nji,nkj->nik", right_t, left)) < 0
     right_t[reflect, 2, :] *= -1
     return np.einsum("nji,nkj->nik", right_t, left)
+
+
+def global_rotation(rest: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """The proper rotation (3, 3) best turning the centred ``rest`` (V, 3) onto the centred ``positions``."""
+    covariance = (rest - rest.mean(axis=0)).T @ (positions - positions.mean(axis=0))
+    left, _, right_t = np.linalg.svd(covariance)
+    if np.linalg.det(right_t.T @ left.T) < 0:
+        right_t[2, :] *= -1
+    return right_t.T @ left.T
 
 
 def fit(system: ArapSystem, goals: np.ndarray, start: np.ndarray, rounds: int) -> np.ndarray:
@@ -126,8 +134,9 @@ def fit(system: ArapSystem, goals: np.ndarray, start: np.ndarray, rounds: int) -
     rest_edges = system.rest[system.heads] - system.rest[system.tails]
     pulled = system.goal_weights[:, None] * goals
     positions = np.asarray(start, dtype=np.float64)
+    rotations = np.broadcast_to(global_rotation(system.rest, positions), (len(positions), 3, 3))
     for _ in range(rounds):
-        rotations = best_rotations(system, positions)
+        rotations = best_rotations(system, positions, rotations)
         mean_rotation = 0.5 * (rotations[system.heads] + rotations[system.tails])
         turned = np.einsum("nab,nb->na", mean_rotation, rest_edges)
         rhs = 2.0 * np.asarray(system.gather @ turned) + pulled

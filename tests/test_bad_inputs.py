@@ -500,19 +500,32 @@ def _sphere(subdivisions):
 
 def test_scaled_turned_and_moved_target_gets_the_same_matching(rng):
     import spidermatch
+    from spidermatch.dense import DenseSettings
+    from spidermatch.pipeline import MatchSettings
     from tests.conftest import random_rotation
 
     source, target = creature(0, 800), creature(1, 800)
-    moved = Mesh(1000.0 * target.verts @ random_rotation(rng).T + [250.0, -40.0, 1200.0], target.faces, "mm")
+    turn = random_rotation(rng)
+    moved = Mesh(1000.0 * target.verts @ turn.T + [250.0, -40.0, 1200.0], target.faces, "mm")
     clean = spidermatch.match(source, target, resolution=80)
     scaled = spidermatch.match(source, moved, resolution=80)
     assert clean.status == scaled.status == "optimal"
     assert scaled.objective == pytest.approx(clean.objective, rel=1e-6)
     assert np.array_equal(scaled.matches, clean.matches)
-    # the dense map may differ where two target vertices are equally good (rounding decides)
+    # The dense map may differ where two target faces or vertices are equally good (floating point
+    # decides a tie). The deformation spreads such a difference over its neighbourhood, by a small
+    # fraction of an edge: its points stay within a fifth of an edge length on average.
+    edge = target.edge_lengths.mean()
     apart = np.linalg.norm(target.verts[scaled.dense_map] - target.verts[clean.dense_map], axis=1)
-    assert np.mean(scaled.dense_map == clean.dense_map) > 0.95
-    assert apart.mean() / np.sqrt(target.area) < 0.002, apart.mean() / np.sqrt(target.area)
+    assert np.mean(scaled.dense_map == clean.dense_map) > 0.75 and apart.mean() < 0.25 * edge
+    back = (scaled.dense.points(moved) - [250.0, -40.0, 1200.0]) / 1000.0 @ turn
+    points = clean.dense.points(target)
+    drift = np.linalg.norm((back - back.mean(axis=0)) - (points - points.mean(axis=0)), axis=1)
+    assert drift.mean() < 0.2 * edge and np.median(drift) < 0.05 * edge
+    # The methods that round each vertex on its own keep nearly all vertices.
+    settings = MatchSettings(resolution=80, dense=DenseSettings("interp_features"))
+    maps = [spidermatch.match(source, mesh, settings=settings).dense_map for mesh in (target, moved)]
+    assert np.mean(maps[0] == maps[1]) > 0.95
 
 
 # a misspelt option: refused with the nearest real name, also when Hydra's '+' hint is followed
