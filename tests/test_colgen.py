@@ -306,3 +306,10 @@ def test_full_model_figures_of_an_interrupted_mip_take_the_lp_bound_without_a_mi
     figures = interrupted_full_model_figures({"bound": 15.0, "incumbent_objective": 20.0}, 10.0, 12.0)
     assert figures == {"bound": 12.0, "gap": pytest.approx(0.4)}
     assert interrupted_full_model_figures({"bound": 5.0}, 10.0, 12.0)["bound"] == 10.0
+
+
+def test_every_strategy_raises_the_one_lp_not_solved():
+    """An ``except LpNotSolved`` must catch a stopped LP from either module (there were two classes)."""
+    from spidermatch.solve import colgen, highs, strategies
+
+    assert colgen.LpNotSolved is strategies.LpNotSolved is highs.LpNotSolved

@@ -75,7 +75,7 @@ from spidermatch.lazy_model import LazyModel
 from spidermatch.product_graph import INTRA, ProductGraph
 from spidermatch.solve.connectivity import detached_components
 from spidermatch.solve.fixing import sign_corrected_duals
-from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
+from spidermatch.solve.highs import HighsSession, LpNotSolved, SolveResult, SolverOptions, relative_gap
 from spidermatch.solve.path_costs import path_reduced_costs
 from spidermatch.solve.path_seed import cheapest_closed_path, path_plausible
 from spidermatch.solve.progress import report_known
@@ -281,14 +281,6 @@ class ColgenLp:
     def support(self, tolerance: float = 1e-9) -> np.ndarray:
         """Edge ids the LP solution uses, sorted."""
         return self.columns[self.x > tolerance]
-
-
-class LpNotSolved(Exception):
-    """A restricted LP stopped (time limit) or failed; carries HiGHS's result."""
-
-    def __init__(self, result: SolveResult) -> None:
-        super().__init__(result.message)
-        self.result = result
 
 
 def _bounds_only(lazy: LazyModel) -> IlpModel:

@@ -608,3 +608,14 @@ def _read_result(session: HighsSession, wall: float) -> SolveResult:
         session.nnz,
         message,
     )
+
+
+class LpNotSolved(Exception):
+    """An LP (the relaxation or a restricted LP) stopped (time limit) or failed; carries HiGHS's result.
+
+    One class for every strategy, so that an ``except LpNotSolved`` catches it wherever it was raised.
+    """
+
+    def __init__(self, result: SolveResult) -> None:
+        super().__init__(result.message)
+        self.result = result

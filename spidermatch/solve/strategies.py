@@ -39,7 +39,7 @@ from spidermatch.solve.connectivity import (
     two_cycle_components,
 )
 from spidermatch.solve.fixing import DualBound, dual_bound
-from spidermatch.solve.highs import HighsSession, SolveResult, SolverOptions, relative_gap
+from spidermatch.solve.highs import HighsSession, LpNotSolved, SolveResult, SolverOptions, relative_gap
 from spidermatch.solve.layer_flow import SessionFlows
 from spidermatch.solve.progress import report_known
 from spidermatch.solve.repair import REPAIR_TIME_S, REPAIR_TIME_SHARE, repair_detached
@@ -351,14 +351,6 @@ SEED_GAP = 0.01  # first restricted MIP: columns within 1 % of the LP bound in r
 SEED_FRACTION = 0.01  # ... and at least this fraction of all columns
 SEED_MIP_GAP = 0.01  # the first restricted MIP is run only for an incumbent: it stops at this gap
 MAX_PHASES = 4
-
-
-class LpNotSolved(Exception):
-    """The LP relaxation stopped (time limit) or failed; carries HiGHS's result."""
-
-    def __init__(self, result: SolveResult) -> None:
-        super().__init__(result.message)
-        self.result = result
 
 
 @dataclass(frozen=True)
