@@ -62,6 +62,7 @@ from scipy.spatial import cKDTree
 from spidermatch.coarse import coarse_labels, faces_by_label, project_onto_coarse, ring_faces
 from spidermatch.costs import unit_rows
 from spidermatch.mesh import Mesh, mean_incident_edge_length, principal_axes
+from spidermatch.registration import arap_system, fit
 from spidermatch.remesh import Decimated
 from spidermatch.surface import (
     closest_triangle_points,
@@ -324,14 +325,8 @@ def densify(
             rest_scale = float(np.sqrt(target.area / source.area))
         points = surface_positions(target, face, bary)
         features = (unit_rows(source_features), unit_rows(target_features))
-        face, bary = deformed_points(
-            source, target, points, radius / settings.radius, features, settings, rest_scale
-        )
+        face, bary = deformed_points(source, target, points, local_edge, features, settings, rest_scale)
         vertex = nearest_corner(target, face, bary)
-        dense = DenseMap(vertex, face, bary, settings.method)
-        if settings.smoothing > 0:
-            dense = smoothed(dense, source, target, np.zeros(0, dtype=np.int64), settings.smoothing)
-        return _with_inverse(_rounded(dense, source, target, settings), source, target, settings)
     else:
         start = nearest_corner(target, face, bary)
         candidates = None
@@ -346,30 +341,22 @@ def densify(
             far = np.linalg.norm(target.verts[vertex] - points, axis=1) > radius
             vertex[far] = start[far]
         face, bary = vertex_points(target, vertex)
-    dense = pin_certified(DenseMap(vertex, face, bary, settings.method), target, low_x, low_y, low_map)
-    if settings.smoothing > 0:
-        dense = smoothed(dense, source, target, low_x.to_full, settings.smoothing)
+    dense = DenseMap(vertex, face, bary, settings.method)
+    # The deformation starts from the certified matches; every other method keeps them.
+    keep = settings.method != "deformation"
+    fixed = low_x.to_full if keep else np.zeros(0, dtype=np.int64)
+    if keep:
         dense = pin_certified(dense, target, low_x, low_y, low_map)
-    dense = _rounded(dense, source, target, settings, fixed=low_x.to_full)
-    return _with_inverse(dense, source, target, settings)
-
-
-def _rounded(
-    dense: DenseMap, source: Mesh, target: Mesh, settings: DenseSettings, fixed: np.ndarray | None = None
-) -> DenseMap:
-    """``dense`` with its vertices unfolded (:func:`spidermatch.unfold.unfolded_vertices`) if asked."""
-    if not settings.unfold:
-        return dense
-    vertex = unfolded_vertices(source, target, dense.vertex, dense.points(target), fixed)
-    return DenseMap(vertex, dense.face, dense.bary, dense.method, dense.covered, dense.inverse)
-
-
-def _with_inverse(dense: DenseMap, source: Mesh, target: Mesh, settings: DenseSettings) -> DenseMap:
-    if not settings.inverse:
-        return dense
-    return DenseMap(
-        dense.vertex, dense.face, dense.bary, dense.method, dense.covered, inverse_map(dense, source, target)
-    )
+    if settings.smoothing > 0:
+        dense = smoothed(dense, source, target, fixed, settings.smoothing)
+        if keep:
+            dense = pin_certified(dense, target, low_x, low_y, low_map)
+    if settings.unfold:
+        vertex = unfolded_vertices(source, target, dense.vertex, dense.points(target), fixed)
+        dense = replace(dense, vertex=vertex)
+    if settings.inverse:
+        dense = replace(dense, inverse=inverse_map(dense, source, target))
+    return dense
 
 
 def inverse_map(dense: DenseMap, source: Mesh, target: Mesh) -> InverseMap:
@@ -380,11 +367,32 @@ def inverse_map(dense: DenseMap, source: Mesh, target: Mesh) -> InverseMap:
     to it, so the two maps agree: following the inverse and then the forward map moves a
     target vertex by ``gap`` only (zero where the image surface covers it).
     """
-    images = dense.points(target)
-    face, bary = closest_triangle_points(images, source.faces, target.verts)
-    closest = np.einsum("nk,nkd->nd", bary, images[source.faces[face]])
-    gap = np.linalg.norm(closest - target.verts, axis=1) / np.sqrt(target.area)
+    face, bary, gap = closest_on_image_surface(dense, source, target, target.verts)
     return InverseMap(nearest_corner(source, face, bary), face, bary, gap)
+
+
+def closest_on_image_surface(
+    dense: DenseMap, source: Mesh, target: Mesh, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each point's closest point on the image surface (see :func:`inverse_map`).
+
+    Parameters
+    ----------
+    points : np.ndarray, shape (N, 3)
+        Points on or near the target.
+
+    Returns
+    -------
+    face : np.ndarray, shape (N,), int64
+        Source face.
+    bary : np.ndarray, shape (N, 3)
+    gap : np.ndarray, shape (N,)
+        Distance to the image surface over sqrt(target area).
+    """
+    images = dense.points(target)
+    face, bary = closest_triangle_points(images, source.faces, points)
+    closest = np.einsum("nk,nkd->nd", bary, images[source.faces[face]])
+    return face, bary, np.linalg.norm(closest - points, axis=1) / np.sqrt(target.area)
 
 
 def deformed_points(
@@ -418,8 +426,6 @@ def deformed_points(
         The final image points on the target.
 
     """
-    from spidermatch.registration import arap_system, fit
-
     areas = source.vertex_areas
     goal_weights = settings.fit_weight * areas / max(float(areas.mean()), np.finfo(float).tiny)
     goal_weights = np.maximum(goal_weights, settings.fit_weight * 1e-6)  # vertices on no face
