@@ -77,7 +77,7 @@ class Mesh:
     @property
     def area(self) -> float:
         """Total surface area."""
-        return float(self.face_areas.sum())
+        return self._cached("area", lambda: float(self.face_areas.sum()))
 
     @property
     def vertex_areas(self) -> np.ndarray:

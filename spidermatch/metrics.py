@@ -198,13 +198,32 @@ def flipped_faces(
     source: Mesh, target: Mesh, points: np.ndarray, face: np.ndarray, bary: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Flipped and degenerate image triangles, bool (F_X,) each (see the module docstring)."""
-    triangles = points[source.faces]
-    normal = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
-    area = 0.5 * np.linalg.norm(normal, axis=1)
-    degenerate = area <= DEGENERATE_AREA * target.area / target.n_faces
     target_normals = vertex_normals(target.verts, target.faces)
     at_points = np.einsum("nk,nkd->nd", bary, target_normals[target.faces[face]])
-    reference = at_points[source.faces].sum(axis=1)
+    return oriented_triangles(points[source.faces], at_points[source.faces].sum(axis=1), target)
+
+
+def oriented_triangles(
+    corners: np.ndarray, reference: np.ndarray, target: Mesh
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which triangles on ``target`` face against it, and which have no area (the flips' definition).
+
+    Parameters
+    ----------
+    corners : np.ndarray, shape (F, 3, 3)
+        The triangles' corner positions.
+    reference : np.ndarray, shape (F, 3)
+        The target's normal direction at each triangle (e.g. its corners' normals summed).
+    target : Mesh
+
+    Returns
+    -------
+    flipped, degenerate : np.ndarray, shape (F,), bool each
+        Degenerate: area at most :data:`DEGENERATE_AREA` of the target's mean triangle;
+        flipped: not degenerate, and its normal against ``reference``.
+    """
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    degenerate = 0.5 * np.linalg.norm(normal, axis=-1) <= DEGENERATE_AREA * target.area / target.n_faces
     flipped = ~degenerate & (np.einsum("fd,fd->f", normal, reference) < 0)
     return flipped, degenerate
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from spidermatch.coarse import vertex_rings
 from spidermatch.mesh import Mesh, mean_incident_edge_length
-from spidermatch.metrics import DEGENERATE_AREA, TEAR_THRESHOLD
+from spidermatch.metrics import TEAR_THRESHOLD, oriented_triangles
 from spidermatch.operators import vertex_normals
 from spidermatch.surface import vertex_face_table
 
@@ -55,12 +55,7 @@ def flipped_triangles(images: np.ndarray, target: Mesh, normals: np.ndarray) -> 
         Flipped and not degenerate (as :func:`spidermatch.metrics.flipped_faces` on a vertex map).
 
     """
-    corners = target.verts[images]
-    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    area = 0.5 * np.linalg.norm(normal, axis=-1)
-    reference = normals[images].sum(axis=1)
-    proper = area > DEGENERATE_AREA * target.area / target.n_faces
-    return proper & (np.einsum("fd,fd->f", normal, reference) < 0)
+    return oriented_triangles(target.verts[images], normals[images].sum(axis=1), target)[0]
 
 
 def unfolded_vertices(
