@@ -52,8 +52,8 @@ class Case:
 def write_off(path: Path, verts, faces) -> Path:
     """``verts``/``faces`` as an OFF file, unchecked (the audit writes broken meshes on purpose)."""
     sys.path.insert(0, str(ROOT))
-    from spidermatch.io import save_mesh
-    from spidermatch.mesh import Mesh
+    from spidermatch.geometry.io import save_mesh
+    from spidermatch.geometry.mesh import Mesh
 
     save_mesh(Mesh(verts, faces), path)
     return path
@@ -61,7 +61,7 @@ def write_off(path: Path, verts, faces) -> Path:
 
 def read_off(path: Path):
     sys.path.insert(0, str(ROOT))
-    from spidermatch.io import read_off as read
+    from spidermatch.geometry.io import read_off as read
 
     return read(path)
 
@@ -205,8 +205,8 @@ def make_cases(data: Path, work: Path) -> list[Case]:
             "api_features_1e200",
             "API: WKS features x 1e200",
             api(
-                "import spidermatch\nfrom spidermatch.descriptors import WKSExtractor\n"
-                "from spidermatch.io import load_mesh\n"
+                "import spidermatch\nfrom spidermatch.geometry.descriptors import WKSExtractor\n"
+                "from spidermatch.geometry.io import load_mesh\n"
                 f"a,b=load_mesh('{x}'),load_mesh('{y}')\nw=WKSExtractor()\n"
                 "m=spidermatch.match(a,b,features=(w(a.centred())*1e200,w(b.centred())*1e200),resolution=150)\n"
                 "import numpy as np\nprint(m, 'distinct targets', len(np.unique(m.matches[:,1])))"

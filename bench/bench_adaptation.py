@@ -23,8 +23,8 @@ from scipy.spatial import cKDTree
 
 from features.extractor import WKSExtractor
 from features.learned import LearnedExtractor
-from spidermatch.datasets import open_dataset
-from spidermatch.evaluate import dense_map_errors
+from spidermatch.data.datasets import open_dataset
+from spidermatch.eval.errors import dense_map_errors
 
 
 def nn_error(feat_x, feat_y, x, y) -> float:

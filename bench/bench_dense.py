@@ -11,7 +11,7 @@ pair, every variant, the features' nearest-neighbour map and the ground truth ar
 measured: the mean geodesic error of the vertex map (``dense_matches.csv``) over all
 reference points (dense Princeton protocol); tears, flipped and degenerate triangles
 of the vertex map (``vertex_*``) and of the image points (point form, ``point_*``; see
-:mod:`spidermatch.metrics`); how far the certified vertices' dense images lie from their
+:mod:`spidermatch.eval.metrics`); how far the certified vertices' dense images lie from their
 certified images (``certified_distance``, in local low-resolution edge lengths, and
 ``certified_within_edge``); the densification time (``time_s``, wall clock: on a shared
 machine it includes waiting for the CPU) and its peak memory (``peak_mib``:
@@ -39,12 +39,12 @@ import numpy as np
 from feature_options import add_feature_options, load_pair_with_features, parse_checked
 from scipy.spatial import cKDTree
 
-from spidermatch.dense import DenseSettings, certified_agreement, densify, feature_nearest_neighbours
-from spidermatch.evaluate import sparse_map_errors
-from spidermatch.mesh import Mesh
-from spidermatch.metrics import consistency, geodesic_errors, vertex_map_consistency
+from spidermatch.dense.densify import DenseSettings, certified_agreement, densify, feature_nearest_neighbours
+from spidermatch.eval.errors import sparse_map_errors
+from spidermatch.eval.metrics import consistency, geodesic_errors, vertex_map_consistency
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.remesh import Decimated
 from spidermatch.pipeline import MatchError
-from spidermatch.remesh import Decimated
 
 VAL_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
 
@@ -147,7 +147,7 @@ def cache_path(args, pair: tuple[str, str]) -> Path:
 
 def certified_pair(args, pair: tuple[str, str]) -> dict:
     """The pair's meshes, features and certified low-resolution map, from the cache or solved now."""
-    from spidermatch.datasets import open_dataset
+    from spidermatch.data.datasets import open_dataset
 
     path = cache_path(args, pair)
     if not path.is_file():

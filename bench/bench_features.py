@@ -19,8 +19,8 @@ from feature_options import add_feature_options, parse_checked
 from scipy.spatial import cKDTree
 
 from features.extractor import extractor_by_name
-from spidermatch.datasets import open_dataset
-from spidermatch.evaluate import dense_map_errors
+from spidermatch.data.datasets import open_dataset
+from spidermatch.eval.errors import dense_map_errors
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -35,7 +35,7 @@ import numpy as np
 from features.extractor import WKSExtractor
 from features.learned import load_network
 from features.wks import normalise_rows
-from spidermatch.datasets import open_dataset
+from spidermatch.data.datasets import open_dataset
 from train.config import DataConfig, TrainConfig
 from train.data import Validator, ValShape, prepare_val_shape, select_names
 

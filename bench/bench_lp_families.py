@@ -38,8 +38,8 @@ def prepare_pair(data: str, pair: str, faces: int, features: str, checkpoint: st
 
 def family_row(curve, graph, model, families, mip: bool, options) -> dict:
     """LP (and optionally integer) figures of the model restricted to ``families``."""
-    from spidermatch.ilp import build_model
-    from spidermatch.product_graph import cyclic_runs, split_layers
+    from spidermatch.model.ilp import build_model
+    from spidermatch.model.product_graph import cyclic_runs, split_layers
     from spidermatch.solve.highs import relative_gap
     from spidermatch.solve.strategies import count_fractional, solve_lp, solve_with_strategy
 

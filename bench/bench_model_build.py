@@ -28,13 +28,13 @@ def build_once(task: tuple) -> dict:
     """Decimate, trace, then build the full model with one method; figures of the build alone."""
     import numpy as np
 
-    from spidermatch.costs import product_edge_costs
-    from spidermatch.curve import spider_curve
-    from spidermatch.datasets import open_dataset
-    from spidermatch.ilp import build_model
-    from spidermatch.lazy_model import LazyModel
-    from spidermatch.product_graph import build_product_graph
-    from spidermatch.remesh import decimate
+    from spidermatch.data.datasets import open_dataset
+    from spidermatch.geometry.remesh import decimate
+    from spidermatch.model.costs import product_edge_costs
+    from spidermatch.model.curve import spider_curve
+    from spidermatch.model.ilp import build_model
+    from spidermatch.model.lazy_model import LazyModel
+    from spidermatch.model.product_graph import build_product_graph
 
     data, pair, faces, method = task
     dataset = open_dataset(data)

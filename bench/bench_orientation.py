@@ -30,10 +30,10 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_scaling import write_rows  # noqa: E402
 
-from spidermatch.datasets import open_dataset  # noqa: E402
-from spidermatch.io import load_mesh  # noqa: E402
-from spidermatch.mesh import Mesh  # noqa: E402
-from spidermatch.synthetic import random_rotation  # noqa: E402
+from spidermatch.data.datasets import open_dataset  # noqa: E402
+from spidermatch.data.synthetic import random_rotation  # noqa: E402
+from spidermatch.geometry.io import load_mesh  # noqa: E402
+from spidermatch.geometry.mesh import Mesh  # noqa: E402
 from train.data import select_names  # noqa: E402
 
 LYING = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # 90 degrees about x

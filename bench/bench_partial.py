@@ -33,10 +33,10 @@ from bench_scaling import format_row, write_rows
 from scipy.spatial import cKDTree
 
 import spidermatch
-from spidermatch.datasets import ShapeFolder, read_pairs_file
-from spidermatch.evaluate import pointwise_geodesic_errors
-from spidermatch.io import load_mesh
-from spidermatch.mesh import Mesh
+from spidermatch.data.datasets import ShapeFolder, read_pairs_file
+from spidermatch.eval.errors import pointwise_geodesic_errors
+from spidermatch.geometry.io import load_mesh
+from spidermatch.geometry.mesh import Mesh
 
 COLUMNS = ("part", "target", "kept_area", "mode", "status", "gap", "solve_s", "total_s", "dense_error", "iou")
 

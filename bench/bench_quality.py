@@ -1,8 +1,8 @@
-"""Calibration of the quality verdict (spidermatch/quality.py) against ground truth.
+"""Calibration of the quality verdict (spidermatch/eval/quality.py) against ground truth.
 
 Runs ``spidermatch-eval`` on seeded random ordered pairs of each collection (resuming finished
 pairs), then reads every pair's ``result.json``: the verdict's figures (computed without ground
-truth, judged again with the current thresholds of ``spidermatch.quality.judge``) beside the
+truth, judged again with the current thresholds of ``spidermatch.eval.quality.judge``) beside the
 mean geodesic error (with it). A matching is *bad* when its dense map's mean error
 exceeds ``--bad-error`` (0.1 of sqrt(area): a mirrored or misplaced body part; correct maps
 on FAUST_r are near 0.03). Prints and writes the confusion table of "suspect" against "bad"
@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 from bench_scaling import write_rows  # noqa: E402
 
 sys.path.insert(0, str(ROOT))
-from spidermatch.quality import judge  # noqa: E402
+from spidermatch.eval.quality import judge  # noqa: E402
 
 
 def pair_list(data: Path, n_pairs: int, within: str, seed: int) -> list[tuple[str, str]]:

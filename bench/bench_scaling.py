@@ -46,7 +46,7 @@ def run_instance(task: tuple) -> dict:
 
         name = f"{pair[0]}_{pair[1]}_{faces}_{strategy}.log"
         logging.basicConfig(filename=str(Path(log_dir) / name), level=logging.INFO, force=True)
-    from spidermatch.evaluate import sparse_map_errors
+    from spidermatch.eval.errors import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match
     from spidermatch.solve.highs import SolverOptions
     from spidermatch.validate import OptionError

@@ -44,7 +44,7 @@ COLUMNS = (
 def run_instance(args: tuple) -> dict:
     data, pair, faces, strategy, features, time_limit, checkpoint, highs = args
 
-    from spidermatch.evaluate import sparse_map_errors
+    from spidermatch.eval.errors import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match
     from spidermatch.solve.highs import SolverOptions
 

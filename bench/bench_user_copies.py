@@ -51,13 +51,13 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_scaling import write_rows  # noqa: E402
 
-from spidermatch.evaluate import dense_map_errors, sparse_map_errors  # noqa: E402
-from spidermatch.geodesics import GeodesicDistances  # noqa: E402
-from spidermatch.io import load_mesh, read_vts, save_mesh, write_vts  # noqa: E402
-from spidermatch.mesh import Mesh  # noqa: E402
-from spidermatch.operators import vertex_normals  # noqa: E402
-from spidermatch.remesh import decimate, nearest_vertices  # noqa: E402
-from spidermatch.synthetic import random_rotation  # noqa: E402
+from spidermatch.data.synthetic import random_rotation  # noqa: E402
+from spidermatch.eval.errors import dense_map_errors, sparse_map_errors  # noqa: E402
+from spidermatch.geometry.geodesics import GeodesicDistances  # noqa: E402
+from spidermatch.geometry.io import load_mesh, read_vts, save_mesh, write_vts  # noqa: E402
+from spidermatch.geometry.mesh import Mesh  # noqa: E402
+from spidermatch.geometry.operators import vertex_normals  # noqa: E402
+from spidermatch.geometry.remesh import decimate, nearest_vertices  # noqa: E402
 
 VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
 KINDS = ("clean", "scaled", "sub80k", "sub200k", "sub320k")

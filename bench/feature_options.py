@@ -41,7 +41,7 @@ def parse_checked(parser: argparse.ArgumentParser, argv: list[str] | None) -> ar
 
 def pair_problem(data: str, pairs: list[str]) -> str | None:
     """Why ``pairs`` (``SOURCE:TARGET`` texts) cannot be loaded from ``data``, or None if they can."""
-    from spidermatch.datasets import DatasetError, checked_pair, open_dataset
+    from spidermatch.data.datasets import DatasetError, checked_pair, open_dataset
 
     try:
         dataset = open_dataset(data)
@@ -66,7 +66,7 @@ def load_pair_with_features(
     features.adapt_steps=N`` does.
     """
     from features.extractor import extractor_by_name
-    from spidermatch.datasets import open_dataset
+    from spidermatch.data.datasets import open_dataset
 
     dataset = open_dataset(data)
     x, y = dataset.load(pair[0]), dataset.load(pair[1])

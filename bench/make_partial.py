@@ -1,7 +1,7 @@
 """Cut shapes of a FAUST_r-style dataset into partial ones with exact ground truth.
 
 For every listed shape and every cut kind (plane cuts, geodesic holes, single views from a
-random camera; :mod:`spidermatch.partial`) one partial copy keeping 30-70 % of the area is
+random camera; :mod:`spidermatch.geometry.partial`) one partial copy keeping 30-70 % of the area is
 written, from a fixed seed so that the figures built on them repeat::
 
     python bench/make_partial.py --data ../shared/data/FAUST_r --shapes tr_reg_070..tr_reg_079 \\
@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from spidermatch.datasets import ShapeFolder
-from spidermatch.io import save_mesh
-from spidermatch.partial import CUT_KINDS, random_cut
+from spidermatch.data.datasets import ShapeFolder
+from spidermatch.geometry.io import save_mesh
+from spidermatch.geometry.partial import CUT_KINDS, random_cut
 
 logger = logging.getLogger("bench.make_partial")
 

@@ -20,8 +20,8 @@ import torch
 from torch import nn
 
 from features.wks import wave_kernel_signature
-from spidermatch.mesh import Mesh
-from spidermatch.operators import Operators, cached_operators
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.operators import Operators, cached_operators
 
 logger = logging.getLogger(__name__)
 
@@ -124,7 +124,7 @@ class TorchOperators:
     def from_operators(
         cls, ops: Operators, area: float, k: int | None = None, dtype: torch.dtype = torch.float32
     ) -> TorchOperators:
-        """Convert float64 :class:`spidermatch.operators.Operators` (with gradients) once.
+        """Convert float64 :class:`spidermatch.geometry.operators.Operators` (with gradients) once.
 
         The shape is rescaled analytically to unit area (scale s = 1 / sqrt(area)):
         eigenvalues times area, eigenvectors and gradients times sqrt(area), mass
@@ -204,7 +204,7 @@ def input_features(
     scale_area : float, optional
         The area that sets the unit of length (default: the mesh's own). A part of a
         surface (a partial scan) is measured in the unit of the whole it belongs to, so that
-        its input and diffusion times match the whole's (see :mod:`spidermatch.partial`).
+        its input and diffusion times match the whole's (see :mod:`spidermatch.geometry.partial`).
 
     Returns
     -------
@@ -240,7 +240,7 @@ def prepare_shape(
     config : ModelConfig
         Gives the input kind, C_in and K = ``n_eig``.
     use_cache : bool
-        Use the on-disk operator cache of :func:`spidermatch.operators.cached_operators`.
+        Use the on-disk operator cache of :func:`spidermatch.geometry.operators.cached_operators`.
     dtype : torch.dtype
     scale_area : float, optional
         The area that sets the unit of length (see :func:`input_features`).

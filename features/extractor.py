@@ -7,8 +7,8 @@ from typing import Protocol
 
 import numpy as np
 
-from spidermatch.descriptors import WKSExtractor
-from spidermatch.mesh import Mesh
+from spidermatch.geometry.descriptors import WKSExtractor
+from spidermatch.geometry.mesh import Mesh
 
 logger = logging.getLogger(__name__)
 

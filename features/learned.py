@@ -31,7 +31,7 @@ from features.orientation import (
     searches_orientation,
 )
 from features.wks import normalise_rows
-from spidermatch.mesh import Mesh, MeshError
+from spidermatch.geometry.mesh import Mesh, MeshError
 
 logger = logging.getLogger(__name__)
 

@@ -29,8 +29,8 @@ import torch
 
 from features.diffusion_net import XYZ_CHANNELS, DiffusionNet, ModelConfig, ShapeInput, prepare_shape
 from features.fmap import FmapLossConfig, fmap_terms
-from spidermatch.mesh import Mesh, principal_axes
-from spidermatch.partial import rigid_fit_residual
+from spidermatch.geometry.mesh import Mesh, principal_axes
+from spidermatch.geometry.partial import rigid_fit_residual
 
 COORDINATE_INPUTS = ("xyz", "wks_xyz")
 
@@ -177,7 +177,7 @@ class OrientationSearch:
         The unsupervised loss of :meth:`search` compares two whole shapes. A part is judged
         instead by where its vertices' features find their nearest features on the whole: the
         candidate whose partners lie closest to where a single rigid motion puts the vertices
-        (:func:`spidermatch.partial.rigid_fit_residual`, no labels) wins. On 25 cut FAUST_r
+        (:func:`spidermatch.geometry.partial.rigid_fit_residual`, no labels) wins. On 25 cut FAUST_r
         shapes the mean feature similarity chose worse (mean nearest-feature error 0.211
         against 0.183; the best of all candidates 0.152).
 
@@ -245,7 +245,7 @@ def probe_input(
     ``scale_area`` sets the unit of length (see :func:`features.diffusion_net.input_features`).
     """
     if faces is not None and mesh.n_faces > faces:
-        from spidermatch.remesh import decimate
+        from spidermatch.geometry.remesh import decimate
 
         mesh = decimate(mesh, int(faces)).mesh
     return prepare_shape(mesh, model, use_cache=use_cache, scale_area=scale_area)

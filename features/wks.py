@@ -1,5 +1,5 @@
-"""Wave Kernel Signature: defined in :mod:`spidermatch.descriptors` (pure numpy), re-exported here."""
+"""Wave Kernel Signature, re-exported from :mod:`spidermatch.geometry.descriptors` (pure numpy)."""
 
-from spidermatch.descriptors import WKSExtractor, normalise_rows, wave_kernel_signature
+from spidermatch.geometry.descriptors import WKSExtractor, normalise_rows, wave_kernel_signature
 
 __all__ = ["WKSExtractor", "normalise_rows", "wave_kernel_signature"]

@@ -9,9 +9,9 @@ __version__ = "0.1.0"
 _LAZY = {
     "match": "spidermatch.api",
     "Matching": "spidermatch.api",
-    "load_mesh": "spidermatch.io",
-    "Mesh": "spidermatch.mesh",
-    "MeshError": "spidermatch.mesh",
+    "load_mesh": "spidermatch.geometry.io",
+    "Mesh": "spidermatch.geometry.mesh",
+    "MeshError": "spidermatch.geometry.mesh",
     "MatchSettings": "spidermatch.pipeline",
     "MatchError": "spidermatch.pipeline",
     "OptionError": "spidermatch.validate",

@@ -1,7 +1,7 @@
 """``spidermatch.match``: the Python entry point for notebooks and scripts.
 
 Takes two meshes in any common form (file paths, ``trimesh.Trimesh`` objects, ``(V, F)``
-array pairs or :class:`~spidermatch.mesh.Mesh`), computes their features, runs the
+array pairs or :class:`~spidermatch.geometry.mesh.Mesh`), computes their features, runs the
 certified SpiderMatch pipeline and returns a :class:`Matching` of plain numpy arrays.
 
 Direction convention
@@ -24,9 +24,9 @@ import numpy as np
 
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
 from spidermatch.feature_transfer import pair_features as capped_pair_features
-from spidermatch.mesh import Mesh, MeshError, make_mesh
+from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
+from spidermatch.geometry.partial import PairKind, announce_pair, pair_kind
 from spidermatch.model_size import check_meshes_fit
-from spidermatch.partial import PairKind, announce_pair, pair_kind
 from spidermatch.validate import check_settings, feature_cap_problem, raise_problems
 
 logger = logging.getLogger(__name__)
@@ -65,7 +65,7 @@ class Matching:
     dense_map : np.ndarray, shape (V_src,), int64, or None
         Target vertex for every vertex of the full-resolution source (``src_to_tgt``); None when
         the dense map is turned off or there is no matching. ``p2p`` is the same array.
-    dense : spidermatch.dense.DenseMap or None
+    dense : spidermatch.dense.densify.DenseMap or None
         The dense map in point-on-surface form (target face and barycentric coordinates).
     status : str
         "optimal" (certified within ``mip_rel_gap``), "feasible" (stopped early with a
@@ -97,7 +97,7 @@ class Matching:
 
     @property
     def dense(self):
-        """The :class:`~spidermatch.dense.DenseMap` of every source vertex, or None."""
+        """The :class:`~spidermatch.dense.densify.DenseMap` of every source vertex, or None."""
         return None if self.details is None else self.details.dense
 
     @property
@@ -144,7 +144,7 @@ def as_mesh(shape, role: str) -> Mesh:
     if isinstance(shape, Mesh):
         return shape
     if isinstance(shape, (str, os.PathLike)):
-        from spidermatch.io import load_mesh
+        from spidermatch.geometry.io import load_mesh
 
         return load_mesh(shape)
     if isinstance(shape, (tuple, list)) and len(shape) == 2:
@@ -212,7 +212,7 @@ def pair_features(
 
 def _extractor_by_name(name: str):
     if name == "wks":
-        from spidermatch.descriptors import WKSExtractor
+        from spidermatch.geometry.descriptors import WKSExtractor
 
         return WKSExtractor()
     if name == "learned":
@@ -268,7 +268,7 @@ def match(
         are used as given).
     partial : str
         "auto": a source with boundary loops the target lacks and a smaller area is matched
-        as a part of the target (:func:`spidermatch.partial.pair_kind`; the reason is
+        as a part of the target (:func:`spidermatch.geometry.partial.pair_kind`; the reason is
         logged and kept in ``details.pair``); "off": always as two whole shapes.
 
     Returns

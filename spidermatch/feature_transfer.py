@@ -17,9 +17,9 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
-from spidermatch.costs import unit_rows
-from spidermatch.mesh import Mesh
-from spidermatch.remesh import decimate
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.remesh import decimate
+from spidermatch.model.costs import unit_rows
 
 logger = logging.getLogger(__name__)
 

@@ -16,7 +16,12 @@ from functools import partial
 
 import numpy as np
 
-from spidermatch.correspondence import (
+from spidermatch.dense.densify import DenseMap, DenseSettings, densify
+from spidermatch.eval.quality import assess
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.partial import PairKind, covered_target, mean_edge_length
+from spidermatch.geometry.remesh import Decimated, decimate
+from spidermatch.model.correspondence import (
     CheckReport,
     MatchingPath,
     SolutionError,
@@ -26,17 +31,12 @@ from spidermatch.correspondence import (
     entries_without_flow,
     extract_path,
 )
-from spidermatch.costs import RobustLoss, feature_cost_matrix, unit_rows
-from spidermatch.curve import SpiderCurve, spider_curve
-from spidermatch.dense import DenseMap, DenseSettings, densify
-from spidermatch.ilp import FAMILIES, IlpModel
-from spidermatch.lazy_model import LazyModel
-from spidermatch.mesh import Mesh
+from spidermatch.model.costs import RobustLoss, feature_cost_matrix, unit_rows
+from spidermatch.model.curve import SpiderCurve, spider_curve
+from spidermatch.model.ilp import FAMILIES, IlpModel
+from spidermatch.model.lazy_model import LazyModel
+from spidermatch.model.product_graph import ProductGraph, build_product_graph
 from spidermatch.model_size import check_model_fits
-from spidermatch.partial import PairKind, covered_target, mean_edge_length
-from spidermatch.product_graph import ProductGraph, build_product_graph
-from spidermatch.quality import assess
-from spidermatch.remesh import Decimated, decimate
 from spidermatch.solve.highs import SolveResult, SolverOptions
 from spidermatch.solve.isolate import solve_isolated
 from spidermatch.solve.strategies import LAZY_STRATEGIES, solve_with_strategy
@@ -81,7 +81,7 @@ class MatchSettings:
     resolution : int
         Target face count of both decimated meshes.
     decimation : str
-        "shortest_edge" or "qslim" (see :func:`spidermatch.remesh.decimate`).
+        "shortest_edge" or "qslim" (see :func:`spidermatch.geometry.remesh.decimate`).
     curve_augmented, target_augmented : bool
         Use augmented edges for the SpiderCurve's graph / the target's product edges.
     curve_seed : int
@@ -98,9 +98,9 @@ class MatchSettings:
         result has status "error" with the incumbent objective and bound known before.
     dense : DenseSettings or None
         How to extend the certified map to every full-resolution source vertex
-        (:mod:`spidermatch.dense`); None: no dense map.
+        (:mod:`spidermatch.dense.densify`); None: no dense map.
     partial : bool
-        The source is a part of the target (:func:`spidermatch.partial.pair_kind`): its
+        The source is a part of the target (:func:`spidermatch.geometry.partial.pair_kind`): its
         lengths are measured in the target's unit (sqrt of the target's area), not its own.
 
     """
@@ -144,7 +144,7 @@ class MatchResult:
     dense : DenseMap or None
         Image of every full-resolution source vertex (None if turned off or unsolved).
     quality : dict or None
-        The verdict on a checked matching without ground truth (:func:`spidermatch.quality.assess`).
+        The verdict on a checked matching without ground truth (:func:`spidermatch.eval.quality.assess`).
     pair : PairKind or None
         How the pair was recognised, when the caller recognised it (the CLI and the API do).
 
@@ -413,7 +413,7 @@ def add_dense_map(
     """Set ``result.dense``: the image of every full-resolution source vertex (a checked matching only).
 
     For a partial source the map also says which target vertices it covers (``covered``,
-    :func:`spidermatch.partial.covered_target`).
+    :func:`spidermatch.geometry.partial.covered_target`).
 
     Parameters
     ----------

@@ -16,9 +16,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from spidermatch.curve import MATCHINGS
-from spidermatch.dense import settings_problems as dense_settings_problems
-from spidermatch.mesh import Mesh, MeshError, face_edges
+from spidermatch.dense.densify import settings_problems as dense_settings_problems
+from spidermatch.geometry.mesh import Mesh, MeshError, face_edges
+from spidermatch.model.curve import MATCHINGS
 from spidermatch.values import is_finite, is_number, is_whole, show
 
 logger = logging.getLogger(__name__)
@@ -167,7 +167,7 @@ def check_options(cfg) -> None:
         ``output`` and the file options are checked where present.
 
     """
-    from spidermatch.ilp import FAMILIES
+    from spidermatch.model.ilp import FAMILIES
     from spidermatch.solve.strategies import AUTO
 
     problems = [
@@ -211,7 +211,7 @@ def check_settings(settings, solver_prefix: str = "solver.") -> None:
     """
     import dataclasses
 
-    from spidermatch.ilp import FAMILIES
+    from spidermatch.model.ilp import FAMILIES
 
     solver = {
         **dataclasses.asdict(settings.solver),

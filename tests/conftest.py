@@ -3,7 +3,7 @@ import pytest
 import trimesh
 from hydra import compose, initialize_config_module
 
-from spidermatch.mesh import Mesh
+from spidermatch.geometry.mesh import Mesh
 
 
 @pytest.fixture(autouse=True)
@@ -35,7 +35,7 @@ def icosphere(subdivisions: int = 3, radius: float = 1.0) -> Mesh:
 
 
 def random_rotation(rng) -> np.ndarray:
-    from spidermatch.synthetic import random_rotation as rotation
+    from spidermatch.data.synthetic import random_rotation as rotation
 
     return rotation(rng)
 

@@ -11,12 +11,12 @@ import trimesh
 
 import spidermatch
 from spidermatch import api
-from spidermatch.datasets import SyntheticShapes
-from spidermatch.dense import certified_agreement
-from spidermatch.descriptors import WKSExtractor
-from spidermatch.evaluate import sparse_map_errors
-from spidermatch.io import load_mesh, save_mesh
-from spidermatch.mesh import MeshError
+from spidermatch.data.datasets import SyntheticShapes
+from spidermatch.dense.densify import certified_agreement
+from spidermatch.eval.errors import sparse_map_errors
+from spidermatch.geometry.descriptors import WKSExtractor
+from spidermatch.geometry.io import load_mesh, save_mesh
+from spidermatch.geometry.mesh import MeshError
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 RESOLUTION = 60
@@ -139,7 +139,8 @@ def test_defaults_agree_with_the_command_line_config():
 def test_import_spidermatch_loads_neither_torch_nor_features():
     code = (
         "import sys, spidermatch; from spidermatch import match; "
-        "import spidermatch.api, spidermatch.pipeline, spidermatch.descriptors, spidermatch.cli; "
+        "import spidermatch.api, spidermatch.pipeline, spidermatch.geometry.descriptors; "
+        "import spidermatch.cli.main; "
         "print(sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'features', 'train')))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

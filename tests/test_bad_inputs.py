@@ -19,11 +19,11 @@ import trimesh
 from hydra import compose, initialize_config_module
 
 import spidermatch
-from spidermatch import guard
-from spidermatch.cli import run_eval, run_match
-from spidermatch.datasets import SyntheticShapes, write_dataset
-from spidermatch.io import load_mesh, read_vts, save_mesh
-from spidermatch.mesh import Mesh, MeshError, make_mesh
+from spidermatch import shutdown
+from spidermatch.cli.main import run_eval, run_match
+from spidermatch.data.datasets import SyntheticShapes, write_dataset
+from spidermatch.geometry.io import load_mesh, read_vts, save_mesh
+from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
 from spidermatch.validate import OptionError
 
 SMALL = ["data.n_verts=700", "resolution=60", "output.png=false"]
@@ -213,16 +213,16 @@ def test_bad_later_stage_options_are_refused_before_the_solve(tmp_path, override
 
 @pytest.mark.parametrize("failure", [MemoryError(), TypeError("a bug")])
 def test_a_failing_dense_stage_keeps_matches_and_records_the_stage(tmp_path, monkeypatch, failure):
-    import spidermatch.cli
+    import spidermatch.cli.main
 
     def fail(*args, **kwargs):
         raise failure
 
-    monkeypatch.setattr(spidermatch.cli, "add_dense_map", fail)
+    monkeypatch.setattr(spidermatch.cli.main, "add_dense_map", fail)
     folder = tmp_path / "run"
     code = run_match(config("match", SMALL), folder)
     result = result_of(folder)
-    assert code == guard.EXIT_OUTPUT_ERROR, result
+    assert code == shutdown.EXIT_OUTPUT_ERROR, result
     assert result["status"] == "output_error" and result["failed_stage"] == "dense"
     assert result["solver_status"] == "optimal" and result["objective"] is not None
     assert (folder / "matches.csv").is_file() and not (folder / "dense_matches.csv").exists()
@@ -242,8 +242,8 @@ def test_a_reused_folder_keeps_no_outputs_of_the_earlier_run(tmp_path):
 
 def test_a_folder_held_by_a_live_run_is_refused(tmp_path):
     folder = tmp_path / "run"
-    command = [sys.executable, "-c", "from spidermatch.cli import match_main; match_main()"]
-    with guard.folder_lock(folder):
+    command = [sys.executable, "-c", "from spidermatch.cli.main import match_main; match_main()"]
+    with shutdown.folder_lock(folder):
         run = subprocess.run(
             [*command, *SMALL, f"hydra.run.dir={folder}"],
             capture_output=True,
@@ -258,7 +258,7 @@ def test_a_folder_held_by_a_live_run_is_refused(tmp_path):
 
 def test_a_free_folder_gets_its_config_saved(tmp_path):
     folder = tmp_path / "run"
-    command = [sys.executable, "-c", "from spidermatch.cli import match_main; match_main()"]
+    command = [sys.executable, "-c", "from spidermatch.cli.main import match_main; match_main()"]
     run = subprocess.run(
         [*command, *SMALL, "dense.enabled=false", f"hydra.run.dir={folder}"],
         capture_output=True,
@@ -419,7 +419,7 @@ def test_a_vts_with_two_columns_names_file_and_line(tmp_path):
 
 
 def test_a_nan_poisoned_operator_cache_is_recomputed(tmp_path, monkeypatch, caplog):
-    from spidermatch.operators import cache_dir, cached_operators, operator_cache_key
+    from spidermatch.geometry.operators import cache_dir, cached_operators, operator_cache_key
 
     monkeypatch.setenv("SPIDERMATCH_CACHE_DIR", str(tmp_path / "cache"))
     mesh = creature(0, 400)
@@ -435,7 +435,7 @@ def test_a_nan_poisoned_operator_cache_is_recomputed(tmp_path, monkeypatch, capl
 
 
 def test_wks_is_the_same_in_any_unit():
-    from spidermatch.descriptors import WKSExtractor
+    from spidermatch.geometry.descriptors import WKSExtractor
 
     mesh = creature(0, 500)
     wks = WKSExtractor(use_cache=False)
@@ -471,7 +471,7 @@ def _scrambled_obj(mesh: Mesh, rng) -> tuple[str, np.ndarray, float]:
 
 
 def test_scrambled_but_repairable_obj_files_load_as_the_original_surface(tmp_path):
-    from spidermatch.mesh import faces_to_flip
+    from spidermatch.geometry.mesh import faces_to_flip
 
     rng = np.random.default_rng(31)
     originals = [creature(seed, 300) for seed in range(3)] + [Mesh(*_sphere(1))]
@@ -500,7 +500,7 @@ def _sphere(subdivisions):
 
 def test_scaled_turned_and_moved_target_gets_the_same_matching(rng):
     import spidermatch
-    from spidermatch.dense import DenseSettings
+    from spidermatch.dense.densify import DenseSettings
     from spidermatch.pipeline import MatchSettings
     from tests.conftest import random_rotation
 
@@ -533,14 +533,14 @@ def test_scaled_turned_and_moved_target_gets_the_same_matching(rng):
 
 @pytest.mark.parametrize("override", ["resolutoin=250", "+resolutoin=250"])
 def test_a_misspelt_option_names_the_real_one(override):
-    from spidermatch.cli_options import unknown_option_problem
+    from spidermatch.cli.options import unknown_option_problem
 
     problem = unknown_option_problem("match", ["source=a.off", override])
     assert "unknown option 'resolutoin' (did you mean resolution?)" in problem
 
 
 def test_real_options_and_group_choices_are_not_flagged():
-    from spidermatch.cli_options import unknown_option_problem
+    from spidermatch.cli.options import unknown_option_problem
 
     overrides = ["features=learned", "features.adapt_steps=20", "dense.radius=3", "hydra/launcher=joblib"]
     assert unknown_option_problem("match", [*overrides, "resolution=100", "hydra.run.dir=x"]) is None
@@ -551,7 +551,7 @@ def test_real_options_and_group_choices_are_not_flagged():
 
 
 def test_quality_verdict_flags_a_mirror_image_and_a_collapse():
-    from spidermatch.quality import assess
+    from spidermatch.eval.quality import assess
 
     sphere = trimesh.creation.icosphere(subdivisions=2)
     verts = sphere.vertices * [1.0, 0.8, 0.6]
@@ -591,7 +591,7 @@ def test_training_that_ends_worse_than_wks_says_so():
 
 
 def test_pictures_of_large_meshes_are_drawn_on_display_meshes(tmp_path, monkeypatch):
-    import spidermatch.figures as figures
+    import spidermatch.report.figures as figures
 
     monkeypatch.setattr(figures, "DISPLAY_FACES", 400)
     source, target = creature(0, 900), creature(1, 900)
@@ -620,12 +620,12 @@ def test_a_forked_solver_process_does_not_hold_the_run_folder(tmp_path):
     folder = tmp_path / "run"
     context = multiprocessing.get_context("fork")
     ready = context.Event()
-    with guard.folder_lock(folder):
+    with shutdown.folder_lock(folder):
         child = context.Process(target=_live_child, args=(ready,))
         child.start()
         assert ready.wait(60)
     try:
-        with guard.folder_lock(folder):  # free once the parent let go, though the child lives on
+        with shutdown.folder_lock(folder):  # free once the parent let go, though the child lives on
             assert child.is_alive()
     finally:
         child.kill()
@@ -633,7 +633,7 @@ def test_a_forked_solver_process_does_not_hold_the_run_folder(tmp_path):
 
 
 def _live_child(ready) -> None:
-    guard.fresh_in_child()
+    shutdown.fresh_in_child()
     ready.set()
     time.sleep(120)
 
@@ -644,7 +644,7 @@ class FakeLoadavg:
 
 
 def test_pytorch_gets_only_the_free_cores(monkeypatch):
-    from spidermatch import cli
+    from spidermatch.cli import main as cli
 
     class FakeTorch:
         threads = 2

@@ -10,8 +10,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from bench_flip_errors import mirrored_matches, turn_about_vertical  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
-from spidermatch.mesh import Mesh  # noqa: E402
-from spidermatch.synthetic import make_creature  # noqa: E402
+from spidermatch.data.synthetic import make_creature  # noqa: E402
+from spidermatch.geometry.mesh import Mesh  # noqa: E402
 from train.data import ValShape  # noqa: E402
 
 

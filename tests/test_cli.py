@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_module
 
-from spidermatch.cli import run_match
-from spidermatch.datasets import SyntheticShapes, write_dataset
+from spidermatch.cli.main import run_match
+from spidermatch.data.datasets import SyntheticShapes, write_dataset
 
 # a generous time limit: on a loaded machine the 300 s default can stop a small solve
 SMALL = ["data.n_verts=700", "resolution=60", "solver.time_limit=3600"]

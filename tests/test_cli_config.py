@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from spidermatch.cli import file_run_overrides
-from spidermatch.datasets import SyntheticShapes, write_dataset
+from spidermatch.cli.main import file_run_overrides
+from spidermatch.data.datasets import SyntheticShapes, write_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -26,8 +26,11 @@ def run_command(main: str, args: list[str], cwd: Path) -> subprocess.CompletedPr
 @pytest.mark.parametrize(
     ("main", "expected"),
     [
-        ("spidermatch.cli:match_main", ["source=PATH target=PATH", "resolution=N", "solver.time_limit=S"]),
-        ("spidermatch.cli:eval_main", ["dataset=DIR", "n_pairs=N", "hydra/launcher=joblib"]),
+        (
+            "spidermatch.cli.main:match_main",
+            ["source=PATH target=PATH", "resolution=N", "solver.time_limit=S"],
+        ),
+        ("spidermatch.cli.main:eval_main", ["dataset=DIR", "n_pairs=N", "hydra/launcher=joblib"]),
         ("train.cli:train_main", ["train/experiment=faust_r", "data.root=DIR", "resume=PATH"]),
     ],
 )
@@ -43,7 +46,7 @@ def test_help_lists_the_main_options(tmp_path, main, expected):
 
 def test_cfg_job_of_a_file_run_shows_files_and_the_resolution_used(tmp_path):
     out = run_command(
-        "spidermatch.cli:match_main", ["--cfg", "job", "source=a.off", "target=b.off"], tmp_path
+        "spidermatch.cli.main:match_main", ["--cfg", "job", "source=a.off", "target=b.off"], tmp_path
     )
     assert out.returncode == 0, out.stderr
     cfg = yaml.safe_load(out.stdout)
@@ -51,9 +54,9 @@ def test_cfg_job_of_a_file_run_shows_files_and_the_resolution_used(tmp_path):
         cfg["data"] == {"kind": "files"} and cfg["resolution"] == 500 and cfg["solver"]["time_limit"] == 300
     )
     args = ["--cfg", "job", "source=a.off", "target=b.off", "features=learned", "checkpoint=x.pt"]
-    cfg = yaml.safe_load(run_command("spidermatch.cli:match_main", args, tmp_path).stdout)
+    cfg = yaml.safe_load(run_command("spidermatch.cli.main:match_main", args, tmp_path).stdout)
     assert cfg["resolution"] == 1000
-    cfg = yaml.safe_load(run_command("spidermatch.cli:match_main", ["--cfg", "job"], tmp_path).stdout)
+    cfg = yaml.safe_load(run_command("spidermatch.cli.main:match_main", ["--cfg", "job"], tmp_path).stdout)
     assert cfg["data"]["kind"] == "synthetic" and cfg["resolution"] == 200
 
 
@@ -73,7 +76,7 @@ def test_saved_config_and_result_describe_the_file_run(tmp_path):
         "output.png=false",
         f"hydra.run.dir={run_dir}",
     ]
-    out = run_command("spidermatch.cli:match_main", args, tmp_path)
+    out = run_command("spidermatch.cli.main:match_main", args, tmp_path)
     assert out.returncode == 0, out.stderr
     saved = yaml.safe_load((run_dir / ".hydra" / "config.yaml").read_text())
     assert saved["data"] == {"kind": "files"} and saved["resolution"] == 60

@@ -2,10 +2,16 @@
 
 import numpy as np
 
-from spidermatch.coarse import coarse_labels, faces_by_label, project_onto_coarse, ring_faces, vertex_rings
-from spidermatch.mesh import Mesh
-from spidermatch.remesh import Decimated
-from spidermatch.surface import closest_surface_points, closest_triangle_points
+from spidermatch.geometry.coarse import (
+    coarse_labels,
+    faces_by_label,
+    project_onto_coarse,
+    ring_faces,
+    vertex_rings,
+)
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.remesh import Decimated
+from spidermatch.geometry.surface import closest_surface_points, closest_triangle_points
 
 
 def grid(n: int, height: float, step: int = 1) -> tuple[np.ndarray, np.ndarray]:

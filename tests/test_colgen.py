@@ -3,16 +3,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from spidermatch.correspondence import active_edges, check_solution
-from spidermatch.curve import SpiderCurve, spider_curve
-from spidermatch.lazy_model import LazyModel
-from spidermatch.product_graph import build_product_graph
-from spidermatch.remesh import decimate
+from spidermatch.data.synthetic import make_creature
+from spidermatch.geometry.remesh import decimate
+from spidermatch.model.correspondence import active_edges, check_solution
+from spidermatch.model.curve import SpiderCurve, spider_curve
+from spidermatch.model.lazy_model import LazyModel
+from spidermatch.model.product_graph import build_product_graph
 from spidermatch.solve.colgen import price, stay_seed
 from spidermatch.solve.fixing import dual_bound, sign_corrected_duals
 from spidermatch.solve.highs import SolverOptions
 from spidermatch.solve.strategies import solve_plain, solve_with_strategy
-from spidermatch.synthetic import make_creature
 from tests.test_ilp import TRIANGLE, brute_force
 
 EXACT = SolverOptions(mip_rel_gap=0.0)
@@ -279,7 +279,7 @@ def test_a_signal_during_a_restricted_mip_reports_a_bound_for_the_full_model(mon
     import signal
 
     import spidermatch.solve.colgen as colgen
-    from spidermatch.guard import RunInterrupted
+    from spidermatch.shutdown import RunInterrupted
 
     lazy = creature_lazy(24, 3)
     plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)

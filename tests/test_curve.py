@@ -1,9 +1,15 @@
 import numpy as np
 import pytest
 
-from spidermatch.curve import CurveError, SpiderCurve, check_curve, greedy_perfect_matching, spider_curve
-from spidermatch.remesh import decimate
-from spidermatch.synthetic import make_creature
+from spidermatch.data.synthetic import make_creature
+from spidermatch.geometry.remesh import decimate
+from spidermatch.model.curve import (
+    CurveError,
+    SpiderCurve,
+    check_curve,
+    greedy_perfect_matching,
+    spider_curve,
+)
 
 
 @pytest.mark.parametrize("augmented", [False, True])

@@ -1,11 +1,11 @@
 import numpy as np
 import pytest
 
-from spidermatch.datasets import DatasetError, ShapeFolder, SyntheticShapes, open_dataset, write_dataset
-from spidermatch.evaluate import cumulative_curve, dense_map_errors, sparse_map_errors
-from spidermatch.io import save_mesh
-from spidermatch.remesh import decimate
-from spidermatch.synthetic import creature_pair_ground_truth, make_creature
+from spidermatch.data.datasets import DatasetError, ShapeFolder, SyntheticShapes, open_dataset, write_dataset
+from spidermatch.data.synthetic import creature_pair_ground_truth, make_creature
+from spidermatch.eval.errors import cumulative_curve, dense_map_errors, sparse_map_errors
+from spidermatch.geometry.io import save_mesh
+from spidermatch.geometry.remesh import decimate
 
 
 def test_synthetic_shapes_are_seeded_and_meshed_independently():

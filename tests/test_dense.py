@@ -2,14 +2,20 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from spidermatch.coarse import vertex_rings
-from spidermatch.dense import METHODS, DenseSettings, certified_agreement, densify, feature_nearest_neighbours
-from spidermatch.mesh import Mesh
-from spidermatch.metrics import consistency, geodesic_errors, vertex_map_consistency
-from spidermatch.remesh import Decimated, decimate
-from spidermatch.surface import closest_surface_points, surface_positions
-from spidermatch.synthetic import creature_pair_ground_truth, make_creature
-from spidermatch.zoomout import zoomout
+from spidermatch.data.synthetic import creature_pair_ground_truth, make_creature
+from spidermatch.dense.densify import (
+    METHODS,
+    DenseSettings,
+    certified_agreement,
+    densify,
+    feature_nearest_neighbours,
+)
+from spidermatch.dense.zoomout import zoomout
+from spidermatch.eval.metrics import consistency, geodesic_errors, vertex_map_consistency
+from spidermatch.geometry.coarse import vertex_rings
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.remesh import Decimated, decimate
+from spidermatch.geometry.surface import closest_surface_points, surface_positions
 
 
 @pytest.fixture(scope="module")
@@ -117,9 +123,9 @@ def test_deformation_maps_a_shape_onto_itself_by_the_identity():
 
 
 def test_inverse_and_coverage_of_a_shape_onto_itself_and_of_a_half():
-    from spidermatch.dense import DenseMap, inverse_map
-    from spidermatch.dense_report import target_coverage
-    from spidermatch.surface import vertex_points
+    from spidermatch.dense.densify import DenseMap, inverse_map
+    from spidermatch.geometry.surface import vertex_points
+    from spidermatch.report.dense_report import target_coverage
 
     mesh = make_creature(1200, seed=2).mesh.centred()
     identity = DenseMap(np.arange(mesh.n_verts), *vertex_points(mesh, np.arange(mesh.n_verts)), "identity")
@@ -154,7 +160,7 @@ def test_deformation_gives_the_same_map_in_any_unit(creature_pair, wks_features)
 def test_unfolding_leaves_fewer_flipped_image_triangles_and_keeps_the_fixed_vertices(
     creature_pair, wks_features
 ):
-    from spidermatch.unfold import unfolded_vertices
+    from spidermatch.dense.unfold import unfolded_vertices
 
     x, y, low_x, low_y, low_map, truth = creature_pair
     rounded = densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features, DenseSettings(unfold=False))
@@ -169,7 +175,7 @@ def test_unfolding_leaves_fewer_flipped_image_triangles_and_keeps_the_fixed_vert
 
 
 def test_zoomout_keeps_the_identity_of_a_shape_onto_itself():
-    from spidermatch.operators import compute_operators
+    from spidermatch.geometry.operators import compute_operators
 
     mesh = make_creature(500, seed=4).mesh
     ops = compute_operators(mesh, k=30)
@@ -183,8 +189,8 @@ def test_zoomout_keeps_the_identity_of_a_shape_onto_itself():
 
 
 def test_pruned_patch_search_and_gathered_similarities_agree_with_the_full_ones(monkeypatch):
-    import spidermatch.dense as dense
-    from spidermatch.remesh import decimate
+    import spidermatch.dense.densify as dense
+    from spidermatch.geometry.remesh import decimate
 
     source, target = make_creature(3000, seed=1).mesh.centred(), make_creature(3000, seed=2).mesh.centred()
     low_x, low_y = decimate(source, 80), decimate(target, 80)
@@ -205,7 +211,7 @@ def test_pruned_search_where_every_point_lies_near_its_patches(monkeypatch):
     """The pruned search's fallback got no points when every point had a patch vertex among its
     nearest vertices and failed on them (a time-limited cat -> dog run at 500 faces, whose
     matching had collapsed onto a few target vertices)."""
-    import spidermatch.dense as dense
+    import spidermatch.dense.densify as dense
 
     mesh = make_creature(3000, seed=1).mesh.centred()
     low = decimate(mesh, 80)
@@ -221,8 +227,8 @@ def test_feature_search_covers_the_whole_radius_on_a_dense_target():
     """On a target much denser than n_neighbours per radius, the best match far from p is still found."""
     import trimesh
 
-    from spidermatch.dense import DenseSettings, feature_refined_vertices, spread_levels
-    from spidermatch.mesh import Mesh
+    from spidermatch.dense.densify import DenseSettings, feature_refined_vertices, spread_levels
+    from spidermatch.geometry.mesh import Mesh
 
     sphere = trimesh.creation.icosphere(subdivisions=6)  # 40 962 vertices
     target = Mesh(np.asarray(sphere.vertices), np.asarray(sphere.faces), "dense sphere")
@@ -240,7 +246,7 @@ def test_feature_search_covers_the_whole_radius_on_a_dense_target():
     # the plain search over the 16 vertices nearest the point stays near the point
     coarse_target = Mesh(target.verts, target.faces, "same")
     plain = settings.__class__(n_neighbours=16)
-    import spidermatch.dense as dense
+    import spidermatch.dense.densify as dense
 
     original = dense.spread_levels
     try:

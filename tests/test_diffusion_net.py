@@ -17,9 +17,9 @@ from features.diffusion_net import (
 )
 from features.fmap import regularised_fmap, resolvent_mask, soft_point_map
 from features.learned import CheckpointError, LearnedExtractor, read_checkpoint
-from spidermatch.mesh import Mesh
-from spidermatch.operators import compute_operators
-from spidermatch.synthetic import make_creature
+from spidermatch.data.synthetic import make_creature
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.operators import compute_operators
 
 SMALL = ModelConfig(in_channels=16, out_channels=8, width=16, n_blocks=2, n_eig=30)
 

@@ -7,10 +7,10 @@ import time
 
 from hydra import compose, initialize_config_module
 
-from spidermatch.batch import select_pairs
-from spidermatch.cli import run_eval
-from spidermatch.cli_collect import main as collect_main
-from spidermatch.datasets import SyntheticShapes, write_dataset
+from spidermatch.cli.batch import select_pairs
+from spidermatch.cli.collect import main as collect_main
+from spidermatch.cli.main import run_eval
+from spidermatch.data.datasets import SyntheticShapes, write_dataset
 
 SMALL = ["resolution=60", "synthetic.n_verts=700"]
 
@@ -69,7 +69,7 @@ def _finished(pairs_dir):
 
 def test_killed_evaluation_resumes_only_missing_pairs(tmp_path):
     run_dir = tmp_path / "outputs" / "eval" / "resume"
-    command = [sys.executable, "-m", "spidermatch.cli_eval", *SMALL, "synthetic.n_shapes=3", "name=resume"]
+    command = [sys.executable, "-m", "spidermatch.cli.eval", *SMALL, "synthetic.n_shapes=3", "name=resume"]
     process = subprocess.Popen(command, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     pairs_dir = run_dir / "pairs"
     deadline = time.monotonic() + 300
@@ -94,7 +94,7 @@ def test_sweep_with_joblib_launcher_and_collect(tmp_path):
     command = [
         sys.executable,
         "-m",
-        "spidermatch.cli_eval",
+        "spidermatch.cli.eval",
         "-m",
         "hydra/launcher=joblib",
         "hydra.launcher.n_jobs=2",

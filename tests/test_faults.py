@@ -17,12 +17,12 @@ import pytest
 import trimesh
 from hydra import compose, initialize_config_module
 
-from spidermatch import guard
-from spidermatch.cli import run_eval, run_match
-from spidermatch.datasets import SyntheticShapes, write_dataset
-from spidermatch.io import load_mesh, read_vts, save_mesh
-from spidermatch.mesh import Mesh, MeshError
-from spidermatch.resume import file_identity, rerun_reason
+from spidermatch import shutdown
+from spidermatch.cli.main import run_eval, run_match
+from spidermatch.cli.resume import file_identity, rerun_reason
+from spidermatch.data.datasets import SyntheticShapes, write_dataset
+from spidermatch.geometry.io import load_mesh, read_vts, save_mesh
+from spidermatch.geometry.mesh import Mesh, MeshError
 from spidermatch.solve.highs import SolverOptionError, set_option
 from spidermatch.validate import topology
 
@@ -157,7 +157,7 @@ def test_02_every_strategy_and_curve_matching_is_accepted_and_unknown_ones_named
 
 
 def test_02_strategy_auto_is_colgen_for_learned_features_and_rcfix_for_wks():
-    from spidermatch.cli import settings_from_config
+    from spidermatch.cli.main import settings_from_config
 
     cfg = config("match", [])
     assert cfg.solver.strategy == "auto"
@@ -238,15 +238,15 @@ def test_06_mesh_below_resolution_warns_in_result(tmp_path):
 
 
 def test_07_disk_full_while_writing_the_png(tmp_path, monkeypatch):
-    import spidermatch.plot
+    import spidermatch.report.plot
 
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(spidermatch.plot, "save_correspondence_png", full)
+    monkeypatch.setattr(spidermatch.report.plot, "save_correspondence_png", full)
     folder = tmp_path / "run"
     cfg = config("match", ["data.n_verts=700", "resolution=60"])
-    assert run_match(cfg, folder) == guard.EXIT_OUTPUT_ERROR
+    assert run_match(cfg, folder) == shutdown.EXIT_OUTPUT_ERROR
     result = result_of(folder)
     assert result["status"] == "output_error" and result["proven_optimal"] is False
     assert "correspondence.png" in result["error"] and "No space left" in result["error"]
@@ -257,7 +257,7 @@ def test_07_disk_full_while_writing_the_png(tmp_path, monkeypatch):
 
 
 def match_command(*args):
-    return [sys.executable, "-c", "from spidermatch.cli import match_main; match_main()", *args]
+    return [sys.executable, "-c", "from spidermatch.cli.main import match_main; match_main()", *args]
 
 
 def run_until_solving(tmp_path, signum):
@@ -305,7 +305,7 @@ def test_08_training_stops_on_sigterm():
 def test_09_unwritable_run_folder(tmp_path):
     blocker = tmp_path / "a_file"
     blocker.write_text("not a folder")
-    assert run_match(config("match", SMALL), blocker / "run") == guard.EXIT_OUTPUT_ERROR
+    assert run_match(config("match", SMALL), blocker / "run") == shutdown.EXIT_OUTPUT_ERROR
 
 
 # 10. option values and names: exit 2 naming the option (through the real entry point)
@@ -409,7 +409,7 @@ def test_15_topology_of_an_open_surface():
 
 def test_written_files_get_the_umask_mode(tmp_path):
     path = tmp_path / "x.json"
-    guard.write_atomic(path, "{}\n")
+    shutdown.write_atomic(path, "{}\n")
     umask = os.umask(0)
     os.umask(umask)
     assert (path.stat().st_mode & 0o777) == (0o666 & ~umask)

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from spidermatch.descriptors import WKSExtractor
+from spidermatch.data.synthetic import make_creature
 from spidermatch.feature_transfer import capped_mesh, carry_features, mesh_features, pair_features
-from spidermatch.remesh import decimate
-from spidermatch.synthetic import make_creature
+from spidermatch.geometry.descriptors import WKSExtractor
+from spidermatch.geometry.remesh import decimate
 from spidermatch.validate import OptionError, check_options
 
 

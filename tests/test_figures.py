@@ -3,10 +3,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from spidermatch.cli import MatchInputs, _write_pngs
-from spidermatch.figures import status_line
-from spidermatch.remesh import decimate
-from spidermatch.synthetic import creature_pair_ground_truth, make_creature
+from spidermatch.cli.main import MatchInputs, _write_pngs
+from spidermatch.data.synthetic import creature_pair_ground_truth, make_creature
+from spidermatch.geometry.remesh import decimate
+from spidermatch.report.figures import status_line
 
 
 @pytest.fixture(scope="module")

@@ -5,15 +5,15 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from spidermatch.correspondence import active_edges, check_solution, extract_path
-from spidermatch.curve import SpiderCurve, spider_curve
-from spidermatch.ilp import ConstraintBlock, IlpModel, build_model, cyc_block, stack_blocks
+from spidermatch.data.synthetic import make_creature
+from spidermatch.geometry.remesh import decimate
+from spidermatch.model.correspondence import active_edges, check_solution, extract_path
+from spidermatch.model.curve import SpiderCurve, spider_curve
+from spidermatch.model.ilp import ConstraintBlock, IlpModel, build_model, cyc_block, stack_blocks
+from spidermatch.model.product_graph import INTER, INTRA, STAY, build_product_graph, cyclic_runs, split_layers
 from spidermatch.pipeline import InfeasibleError, MatchResult
-from spidermatch.product_graph import INTER, INTRA, STAY, build_product_graph, cyclic_runs, split_layers
-from spidermatch.remesh import decimate
 from spidermatch.solve.highs import SolverOptions, solve_model
 from spidermatch.solve.strategies import solve_plain, solve_with_strategy
-from spidermatch.synthetic import make_creature
 
 TRIANGLE = np.array([[0, 1], [1, 2], [0, 2]])
 
@@ -206,7 +206,7 @@ def test_connectivity_cuts_separate_detached_cycles_and_keep_every_path():
 def creature_instance(faces, seed):
     """A small SpiderMatch instance on two synthetic creatures with random vertex-pair costs
     (random costs make the LP relaxation fractional, as real features do at larger sizes)."""
-    from spidermatch.costs import product_edge_costs
+    from spidermatch.model.costs import product_edge_costs
 
     source = decimate(make_creature(600, seed=seed).mesh.centred(), faces).mesh
     target = decimate(make_creature(600, seed=seed + 1).mesh.centred(), faces).mesh

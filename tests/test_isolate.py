@@ -146,7 +146,7 @@ def _match_in_pool_worker(seed):
     import logging
 
     import spidermatch
-    from spidermatch.synthetic import make_creature
+    from spidermatch.data.synthetic import make_creature
 
     messages = []
     handler = logging.Handler()

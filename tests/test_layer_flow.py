@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
-from spidermatch.ilp import build_model
-from spidermatch.product_graph import INTER, INTRA, STAY
+from spidermatch.model.ilp import build_model
+from spidermatch.model.product_graph import INTER, INTRA, STAY
 from spidermatch.solve.connectivity import detached_components
 from spidermatch.solve.highs import SolverOptions
 from spidermatch.solve.layer_flow import flow_values, layer_flow

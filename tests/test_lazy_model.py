@@ -1,13 +1,13 @@
 import numpy as np
 import pytest
 
-from spidermatch.costs import RobustLoss, feature_cost_matrix, product_edge_costs
-from spidermatch.curve import spider_curve
-from spidermatch.ilp import build_model
-from spidermatch.lazy_model import LazyModel
-from spidermatch.product_graph import build_product_graph
-from spidermatch.remesh import decimate
-from spidermatch.synthetic import make_creature
+from spidermatch.data.synthetic import make_creature
+from spidermatch.geometry.remesh import decimate
+from spidermatch.model.costs import RobustLoss, feature_cost_matrix, product_edge_costs
+from spidermatch.model.curve import spider_curve
+from spidermatch.model.ilp import build_model
+from spidermatch.model.lazy_model import LazyModel
+from spidermatch.model.product_graph import build_product_graph
 
 
 def small_problem(families=("CYC", "CON", "PES", "ANS"), faces=60, seed=5):

@@ -3,8 +3,8 @@ import re
 import numpy as np
 import pytest
 
-from spidermatch.io import load_mesh, read_vts, save_mesh
-from spidermatch.mesh import Mesh, MeshError, augment_edges, make_mesh, unique_edges, validate_mesh
+from spidermatch.geometry.io import load_mesh, read_vts, save_mesh
+from spidermatch.geometry.mesh import Mesh, MeshError, augment_edges, make_mesh, unique_edges, validate_mesh
 from tests.conftest import icosphere
 
 TETRA_V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)

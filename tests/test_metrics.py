@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from spidermatch.metrics import (
+from spidermatch.eval.metrics import (
     TEAR_THRESHOLD,
     consistency,
     flipped_faces,
@@ -10,7 +10,7 @@ from spidermatch.metrics import (
     torn_edges,
     vertex_map_consistency,
 )
-from spidermatch.surface import vertex_points
+from spidermatch.geometry.surface import vertex_points
 from tests.conftest import icosphere
 
 
@@ -67,7 +67,7 @@ def test_collapsed_triangles_count_as_degenerate(sphere):
 
 def hairpin_strip(radius: float = 0.01, width: float = 0.2):
     """An open strip folded into a hairpin: two 1-long arms 2*radius apart, joined by a half circle."""
-    from spidermatch.mesh import Mesh
+    from spidermatch.geometry.mesh import Mesh
 
     straight = np.linspace(0.0, 1.0, 101)
     turn = np.linspace(0.0, np.pi, 9)[1:-1]

@@ -3,16 +3,16 @@ import pytest
 
 from features.extractor import WKSExtractor, extractor_by_name
 from features.wks import wave_kernel_signature
-from spidermatch.geodesics import GeodesicDistances
-from spidermatch.mesh import Mesh
-from spidermatch.operators import (
+from spidermatch.data.synthetic import make_creature
+from spidermatch.geometry.geodesics import GeodesicDistances
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.operators import (
     cache_dir,
     cached_operators,
     compute_operators,
     cotangent_laplacian,
     lumped_mass,
 )
-from spidermatch.synthetic import make_creature
 from tests.conftest import icosphere, random_rotation
 
 

@@ -11,9 +11,9 @@ import torch
 from features.diffusion_net import DiffusionNet, ModelConfig, prepare_shape
 from features.learned import CheckpointError, LearnedExtractor, read_checkpoint
 from features.orientation import OrientationSearch, reference_payload, turn_about_vertical
-from spidermatch.mesh import Mesh
-from spidermatch.remesh import decimate
-from spidermatch.synthetic import make_creature
+from spidermatch.data.synthetic import make_creature
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.remesh import decimate
 from train.losses import LossConfig
 
 XYZ = ModelConfig(input="wks_xyz", in_channels=19, out_channels=8, width=16, n_blocks=2, n_eig=30)
@@ -87,7 +87,7 @@ def test_extractor_turns_a_turned_mesh_back(tmp_path, creature, train_faces):
 
 @pytest.mark.parametrize("kind", ["lying", "random"])
 def test_extractor_presents_a_mesh_in_any_rotation_as_the_upright_one(tmp_path, creature, kind):
-    from spidermatch.synthetic import random_rotation
+    from spidermatch.data.synthetic import random_rotation
 
     _checkpoint_with_reference(tmp_path / "a.pt", creature)
     rotation = (

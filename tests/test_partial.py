@@ -9,11 +9,12 @@ import trimesh
 from hydra import compose, initialize_config_module
 
 import spidermatch
-from spidermatch.cli import run_match
-from spidermatch.descriptors import WKSExtractor
-from spidermatch.io import load_mesh, save_mesh
-from spidermatch.mesh import Mesh, MeshError, make_mesh
-from spidermatch.partial import (
+from spidermatch.cli.main import run_match
+from spidermatch.data.synthetic import make_creature
+from spidermatch.geometry.descriptors import WKSExtractor
+from spidermatch.geometry.io import load_mesh, save_mesh
+from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
+from spidermatch.geometry.partial import (
     covered_target,
     holes_cut,
     mean_edge_length,
@@ -23,7 +24,6 @@ from spidermatch.partial import (
     rigid_fit_residual,
     view_cut,
 )
-from spidermatch.synthetic import make_creature
 from spidermatch.validate import topology
 from train.losses import cut_consistency_loss
 

@@ -113,7 +113,7 @@ def test_dual_bound_along_paths_bounds_every_checked_walk_and_keeps_columns_abov
 
 
 def test_by_path_leaves_a_model_without_closed_paths_alone():
-    from spidermatch.lazy_model import LazyModel
+    from spidermatch.model.lazy_model import LazyModel
 
     lazy = creature_lazy(18, 3)
     no_con = LazyModel(

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from spidermatch.lazy_model import LazyModel
+from spidermatch.model.lazy_model import LazyModel
 from spidermatch.solve.colgen import path_band_seed
 from spidermatch.solve.connectivity import detached_components
 from spidermatch.solve.highs import SolverOptions

@@ -3,8 +3,10 @@ import pytest
 from conftest import icosphere
 from scipy.spatial import cKDTree
 
-from spidermatch.mesh import Mesh
-from spidermatch.plot import (
+from spidermatch.data.synthetic import creature_pair_ground_truth, make_creature
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.surface import occluded
+from spidermatch.report.plot import (
     View,
     checker_colours,
     greyed_uncovered,
@@ -20,8 +22,6 @@ from spidermatch.plot import (
     title_lines,
     transfer_colours,
 )
-from spidermatch.surface import occluded
-from spidermatch.synthetic import creature_pair_ground_truth, make_creature
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,7 @@
 import numpy as np
 
-from spidermatch.registration import arap_system, best_rotations, fit
-from spidermatch.synthetic import make_creature
+from spidermatch.data.synthetic import make_creature
+from spidermatch.dense.registration import arap_system, best_rotations, fit
 
 
 def _turn(angle: float) -> np.ndarray:

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from spidermatch.correspondence import active_edges, check_solution
-from spidermatch.curve import SpiderCurve
-from spidermatch.ilp import build_model
+from spidermatch.model.correspondence import active_edges, check_solution
+from spidermatch.model.curve import SpiderCurve
+from spidermatch.model.ilp import build_model
 from spidermatch.solve.connectivity import connectivity_cuts, detached_components
 from spidermatch.solve.highs import SolverOptions
 from spidermatch.solve.repair import freed_layers, repair_detached, window_layers

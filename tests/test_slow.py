@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from features.extractor import WKSExtractor
+from spidermatch.data.synthetic import make_creature
 from spidermatch.pipeline import MatchSettings, match
 from spidermatch.solve.highs import SolverOptions
-from spidermatch.synthetic import make_creature
 
 pytestmark = pytest.mark.slow
 

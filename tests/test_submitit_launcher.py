@@ -22,7 +22,7 @@ def test_eval_sweep_through_submitit_local(tmp_path):
     command = [
         sys.executable,
         "-m",
-        "spidermatch.cli_eval",
+        "spidermatch.cli.eval",
         "-m",
         "hydra/launcher=submitit_local",
         "hydra.launcher.timeout_min=10",

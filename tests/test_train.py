@@ -44,7 +44,7 @@ def tiny_config(**run) -> TrainConfig:
 
 @pytest.fixture(scope="module")
 def shapes() -> list[TrainShape]:
-    from spidermatch.datasets import SyntheticShapes
+    from spidermatch.data.datasets import SyntheticShapes
 
     dataset = SyntheticShapes(n_shapes=3, n_verts=250, seed=0, n_refs=100)
     config = tiny_config()
@@ -196,8 +196,8 @@ def test_bad_checkpoints_are_reported(tmp_path, shapes):
 
 
 def test_validator_agrees_with_the_evaluation_module():
-    from spidermatch.datasets import SyntheticShapes
-    from spidermatch.evaluate import dense_map_errors
+    from spidermatch.data.datasets import SyntheticShapes
+    from spidermatch.eval.errors import dense_map_errors
     from train.data import Validator, prepare_val_shape
 
     config = tiny_config()

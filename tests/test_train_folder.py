@@ -8,9 +8,9 @@ import pytest
 import torch
 
 from features.diffusion_net import ModelConfig
-from spidermatch.datasets import DatasetError, SyntheticShapes
-from spidermatch.io import save_mesh
-from spidermatch.mesh import MeshError
+from spidermatch.data.datasets import DatasetError, SyntheticShapes
+from spidermatch.geometry.io import save_mesh
+from spidermatch.geometry.mesh import MeshError
 from train.config import DataConfig, OptimConfig, RunConfig, TrainConfig
 from train.data import prepare_train_shape, validation_pairs
 from train.loop import new_state, random_rotation, train, train_step
@@ -107,7 +107,7 @@ def test_class_pairs_and_rotations():
 
 
 def test_class_validation_on_a_labelled_folder(tmp_path):
-    from spidermatch.io import write_vts
+    from spidermatch.geometry.io import write_vts
 
     root = tmp_path / "animals"
     for i, name in enumerate(["a0", "a1", "a2", "b0", "b1", "b2"]):

@@ -7,9 +7,9 @@ from html.parser import HTMLParser
 import numpy as np
 import pytest
 
-from spidermatch.plot import position_colours
-from spidermatch.synthetic import creature_pair_ground_truth, make_creature
-from spidermatch.viewer import ViewerMesh, save_match_viewer, save_viewer_html
+from spidermatch.data.synthetic import creature_pair_ground_truth, make_creature
+from spidermatch.report.plot import position_colours
+from spidermatch.report.viewer import ViewerMesh, save_match_viewer, save_viewer_html
 
 
 @pytest.fixture(scope="module")

@@ -12,8 +12,8 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from spidermatch.datasets import DatasetError
-from spidermatch.mesh import MeshError
+from spidermatch.data.datasets import DatasetError
+from spidermatch.geometry.mesh import MeshError
 from train.config import TrainConfig
 from train.loop import train
 

@@ -64,7 +64,7 @@ class DataConfig:
         :mod:`features.orientation`). 0 turns the search off; WKS inputs ignore it.
     partial_copies : int
         Partial copies made of every training shape (plane cuts, holes and single views in
-        turn; :func:`spidermatch.partial.random_cut`), for the cut-consistency term of the
+        turn; :func:`spidermatch.geometry.partial.random_cut`), for the cut-consistency term of the
         loss (``loss.w_partial``). 0: none.
     partial_keep : list of two floats
         Range of the area fraction a partial copy keeps.

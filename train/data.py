@@ -20,11 +20,11 @@ from tqdm.auto import tqdm
 from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
 from features.orientation import OrientationSearch, oriented_outputs
 from features.wks import normalise_rows
-from spidermatch.datasets import Shape, ShapeFolder, SyntheticShapes, open_dataset
-from spidermatch.geodesics import GeodesicDistances
-from spidermatch.mesh import Mesh
-from spidermatch.partial import CUT_KINDS, random_cut
-from spidermatch.remesh import decimate
+from spidermatch.data.datasets import Shape, ShapeFolder, SyntheticShapes, open_dataset
+from spidermatch.geometry.geodesics import GeodesicDistances
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.partial import CUT_KINDS, random_cut
+from spidermatch.geometry.remesh import decimate
 from train.config import DataConfig
 
 logger = logging.getLogger(__name__)
@@ -67,7 +67,7 @@ class PartialInput:
     to_whole : torch.Tensor, shape (V_p,), int64
         Vertex of the training-resolution shape each vertex of the part is.
     kind : str
-        How it was cut (:data:`spidermatch.partial.CUT_KINDS`).
+        How it was cut (:data:`spidermatch.geometry.partial.CUT_KINDS`).
     """
 
     input: ShapeInput

@@ -41,7 +41,7 @@ from features.orientation import (
     searches_orientation,
     turn_about_vertical,
 )
-from spidermatch.datasets import DatasetError
+from spidermatch.data.datasets import DatasetError
 from train.config import TrainConfig, incompatibilities
 from train.data import (
     TrainShape,

@@ -29,7 +29,7 @@ from feature_options import load_pair_with_features  # noqa: E402
 
 def violated_components(graph, columns: np.ndarray, x: np.ndarray) -> list[np.ndarray]:
     """Product-vertex sets (layer * V_Y + y) of support components that violate a connectivity cut."""
-    from spidermatch.product_graph import INTRA
+    from spidermatch.model.product_graph import INTRA
 
     used = x > 1e-6
     tuples, values = graph.edge_tuples(columns[used]), x[used]

@@ -4,7 +4,7 @@ Design
 ------
 The full model has one column per product edge (3.7 M at 1000 faces, ~15 M at 2000),
 but an optimal path uses about one per curve position, and the LP relaxation needs
-few more. ``colgen`` works on a :class:`~spidermatch.lazy_model.LazyModel`, which
+few more. ``colgen`` works on a :class:`~spidermatch.model.lazy_model.LazyModel`, which
 holds only what defines the columns and produces any of them on demand:
 
 1. **Seed.** Per curve position the edges among the ``SEED_NEIGHBOURS`` targets of
@@ -68,11 +68,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse as sp
 
-from spidermatch.curve import SpiderCurve
-from spidermatch.guard import RunInterrupted
-from spidermatch.ilp import IlpModel
-from spidermatch.lazy_model import LazyModel
-from spidermatch.product_graph import INTRA, ProductGraph
+from spidermatch.model.curve import SpiderCurve
+from spidermatch.model.ilp import IlpModel
+from spidermatch.model.lazy_model import LazyModel
+from spidermatch.model.product_graph import INTRA, ProductGraph
+from spidermatch.shutdown import RunInterrupted
 from spidermatch.solve.connectivity import detached_components
 from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import HighsSession, LpNotSolved, SolveResult, SolverOptions, relative_gap

@@ -22,8 +22,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from spidermatch.correspondence import _euler_walk, active_edges
-from spidermatch.product_graph import INTRA, ProductGraph
+from spidermatch.model.correspondence import _euler_walk, active_edges
+from spidermatch.model.product_graph import INTRA, ProductGraph
 
 
 def detached_components(graph: ProductGraph, x: np.ndarray) -> list[np.ndarray]:

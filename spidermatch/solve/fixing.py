@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spidermatch.ilp import IlpModel
-from spidermatch.product_graph import ProductGraph
+from spidermatch.model.ilp import IlpModel
+from spidermatch.model.product_graph import ProductGraph
 from spidermatch.solve.path_costs import path_reduced_costs
 
 

@@ -18,8 +18,8 @@ import highspy
 import numpy as np
 import scipy.sparse as sp
 
-from spidermatch import guard
-from spidermatch.ilp import IlpModel
+from spidermatch import shutdown
+from spidermatch.model.ilp import IlpModel
 from spidermatch.solve.progress import ProgressLog, report_known
 
 logger = logging.getLogger(__name__)
@@ -297,12 +297,12 @@ class HighsSession:
             self.highs.startCallback(highspy.cb.HighsCallbackType.kCallbackMipImprovingSolution)
 
     def _on_callback(self, kind, message, data_out, data_in, user_data) -> None:
-        """HiGHS callback: record improving solutions, log progress, stop on a signal (:mod:`guard`)."""
+        """HiGHS callback: record improving solutions, log progress, stop on a signal."""
         kinds = highspy.cb.HighsCallbackType
         if kind == kinds.kCallbackMipImprovingSolution:
             self._record_improving(data_out)
             return
-        stop = guard.stop_requested() or self.cancel.is_set()
+        stop = shutdown.stop_requested() or self.cancel.is_set()
         if kind == kinds.kCallbackMipInterrupt:
             self.last_mip = (float(data_out.mip_primal_bound), float(data_out.mip_dual_bound))
             self.progress.mip(data_out)
@@ -436,7 +436,7 @@ class HighsSession:
         self.stopped_early = False
         run_interruptibly(self.highs, self._figures_so_far, self.cancel, deadline)
         result = _read_result(self, time.perf_counter() - start)
-        guard.raise_if_stopped(interrupted_figures(result))
+        shutdown.raise_if_stopped(interrupted_figures(result))
         return result
 
 
@@ -499,7 +499,7 @@ def run_interruptibly(highs, figures_so_far, cancel: threading.Event, deadline: 
     On a signal HiGHS's interrupt callbacks stop the solve at its next check. HiGHS does
     not check during presolve or some heuristics, which can last minutes; if it has not
     stopped within ``STOP_GRACE_S`` the solve is abandoned (it dies with the process) and
-    :class:`~spidermatch.guard.RunInterrupted` carries ``figures_so_far()``.
+    :class:`~spidermatch.shutdown.RunInterrupted` carries ``figures_so_far()``.
 
     HiGHS's own time limit is not checked in those phases either (a 65 s MIP at 1000 faces
     ran 164 s). Past ``deadline`` (``time.perf_counter()`` seconds) ``cancel`` is set, which
@@ -516,13 +516,13 @@ def run_interruptibly(highs, figures_so_far, cancel: threading.Event, deadline: 
         except BaseException as error:  # re-raised on the calling thread
             failure.append(error)
 
-    with guard.native_call():
+    with shutdown.native_call():
         done = _SOLVER_THREAD.submit(job)
         try:
             while not done.wait(0.05):
-                if guard.stop_requested() and not done.wait(STOP_GRACE_S):
-                    guard.abandon_native_work()
-                    guard.raise_if_stopped(figures_so_far())
+                if shutdown.stop_requested() and not done.wait(STOP_GRACE_S):
+                    shutdown.abandon_native_work()
+                    shutdown.raise_if_stopped(figures_so_far())
                 if deadline is not None and time.perf_counter() > deadline and not cancel.is_set():
                     logger.warning(
                         "HiGHS is %.0f s past its time limit: interrupting it at its next check",

@@ -17,7 +17,7 @@ rounds of column generation; one process for the whole solve stage keeps both.
 
 Signals: SIGINT/SIGTERM reach the parent (and, from a terminal, ``timeout`` or SLURM,
 usually the child too). The parent forwards them; the child stops HiGHS and sends what it
-knew, and the parent raises :class:`~spidermatch.guard.RunInterrupted` with it. A child
+knew, and the parent raises :class:`~spidermatch.shutdown.RunInterrupted` with it. A child
 that has not answered ``STOP_GRACE_S`` after that is killed.
 
 Time limit: HiGHS does not check its time limit or interrupt flag in some phases (a MIP's
@@ -38,7 +38,7 @@ import time
 
 import numpy as np
 
-from spidermatch import guard
+from spidermatch import shutdown
 from spidermatch.solve import highs as highs_module
 from spidermatch.solve.highs import SolveResult, SolverOptions, relative_gap
 from spidermatch.solve.progress import set_known_sink
@@ -191,7 +191,7 @@ def _child_main(receiver, sender, solve, model, graph, curve, options) -> None:
     """The solver process: run ``solve`` and send its outcome (:class:`ForkedChild` then exits)."""
     receiver.close()  # the parent's end
     _die_with_parent()
-    guard.fresh_in_child()
+    shutdown.fresh_in_child()
     highs_module.fresh_in_child()
     lock, known = threading.Lock(), KnownFigures()
 
@@ -211,7 +211,7 @@ def _child_main(receiver, sender, solve, model, graph, curve, options) -> None:
         result = solve(model, graph, curve, options)
         send(("finishing",))  # sending a large solution may outlast the time limit: no kill now
         send(("result", result))
-    except guard.RunInterrupted as stop:
+    except shutdown.RunInterrupted as stop:
         send(("interrupted", stop.signum, stop.known))
     except Exception as error:  # noqa: BLE001 - re-raised in the parent
         send(("raised", error))
@@ -247,7 +247,7 @@ def _watch(child, receiver, model, start: float, options: SolverOptions) -> Solv
     """
     known, path, finishing, forwarded_at = {}, None, False, None
     kill_at = start + options.time_limit + OVERRUN_KILL_S
-    with guard.native_call():  # a signal is only recorded meanwhile: the child must hear of it first
+    with shutdown.native_call():  # a signal is only recorded meanwhile: the child must hear of it first
         while True:
             if receiver.poll(POLL_S):
                 try:
@@ -269,13 +269,13 @@ def _watch(child, receiver, model, start: float, options: SolverOptions) -> Solv
                 _raise_interrupted(signum, {**known, **figures})
             elif not child.is_alive() and not receiver.poll():
                 break
-            if guard.stop_requested() and forwarded_at is None:
+            if shutdown.stop_requested() and forwarded_at is None:
                 forwarded_at = time.perf_counter()
-                os.kill(child.pid, guard.received_signal())
+                os.kill(child.pid, shutdown.received_signal())
             if forwarded_at is not None and time.perf_counter() - forwarded_at > STOP_GRACE_S:
                 logger.warning("the solver process did not stop within %.0f s: killed", STOP_GRACE_S)
                 child.kill()
-                _raise_interrupted(guard.received_signal(), known)
+                _raise_interrupted(shutdown.received_signal(), known)
             if not finishing and forwarded_at is None and time.perf_counter() > kill_at:
                 child.kill()
                 child.join()
@@ -343,9 +343,9 @@ def _overran(known: dict, path, model, wall: float, options: SolverOptions) -> S
 
 def _raise_interrupted(signum: int, figures: dict) -> None:
     """Raise :class:`RunInterrupted` for ``signum`` with the child's figures."""
-    if guard.stop_requested():
-        guard.raise_if_stopped(figures)
-    raise guard.RunInterrupted(signum, figures)
+    if shutdown.stop_requested():
+        shutdown.raise_if_stopped(figures)
+    raise shutdown.RunInterrupted(signum, figures)
 
 
 def describe_exit(exitcode: int | None) -> str:

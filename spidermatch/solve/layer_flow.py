@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from spidermatch.product_graph import INTRA, ProductGraph
+from spidermatch.model.product_graph import INTRA, ProductGraph
 from spidermatch.solve.connectivity import walk_through_layer_0
 
 

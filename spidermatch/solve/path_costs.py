@@ -35,7 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
-from spidermatch.product_graph import INTRA, ProductGraph
+from spidermatch.model.product_graph import INTRA, ProductGraph
 
 
 def _min_weight_matrix(tails: np.ndarray, heads: np.ndarray, weights: np.ndarray, size: int) -> sp.csr_matrix:

@@ -21,8 +21,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
-from spidermatch.lazy_model import LazyModel
-from spidermatch.product_graph import INTRA
+from spidermatch.model.lazy_model import LazyModel
+from spidermatch.model.product_graph import INTRA
 
 logger = logging.getLogger(__name__)
 

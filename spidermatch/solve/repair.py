@@ -20,8 +20,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from spidermatch.ilp import IlpModel, restrict_columns
-from spidermatch.product_graph import ProductGraph
+from spidermatch.model.ilp import IlpModel, restrict_columns
+from spidermatch.model.product_graph import ProductGraph
 from spidermatch.solve.connectivity import is_closed_path
 from spidermatch.solve.highs import HighsSession, SolverOptions
 from spidermatch.solve.layer_flow import SessionFlows

@@ -28,10 +28,10 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
-from spidermatch.curve import SpiderCurve
-from spidermatch.guard import RunInterrupted
-from spidermatch.ilp import IlpModel, restrict_columns
-from spidermatch.product_graph import ProductGraph
+from spidermatch.model.curve import SpiderCurve
+from spidermatch.model.ilp import IlpModel, restrict_columns
+from spidermatch.model.product_graph import ProductGraph
+from spidermatch.shutdown import RunInterrupted
 from spidermatch.solve.connectivity import (
     connectivity_cuts,
     detached_components,
@@ -509,7 +509,7 @@ def solve_with_strategy(
     name: str, model, graph: ProductGraph, curve: SpiderCurve, options: SolverOptions
 ) -> SolveResult:
     """Run the strategy called ``name`` on ``model`` (an IlpModel, or a LazyModel for any strategy)."""
-    from spidermatch.lazy_model import LazyModel
+    from spidermatch.model.lazy_model import LazyModel
 
     if name in LAZY_STRATEGIES:
         from spidermatch.solve.colgen import solve_column_generation

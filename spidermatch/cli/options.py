@@ -1,0 +1,124 @@
+"""Command-line checks before Hydra starts: unknown option names and an unusable run folder.
+
+Hydra reports a misspelt option (``resolutoin=5``) with exit code 1 and fails with a
+traceback when it cannot create the run folder; spidermatch promises exit code 2 for bad
+input and 6 for an output that cannot be written, with a message naming the option or path.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+from spidermatch.shutdown import EXIT_BAD_INPUT, EXIT_OUTPUT_ERROR
+
+
+def compose_problem(config_name: str, overrides: list[str]):
+    """Compose the configuration with ``overrides``; return (config or None, problem or None)."""
+    from hydra import compose, initialize_config_module
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    try:
+        with initialize_config_module(config_module="conf", version_base="1.3"):
+            return compose(config_name=config_name, overrides=overrides, return_hydra_config=True), None
+    except (HydraException, OmegaConfBaseException) as error:
+        lines = [line for line in str(error).splitlines() if line.strip()]
+        return None, " ".join(lines[:3]) if lines else type(error).__name__
+
+
+def unwritable_folder(folder: str | os.PathLike) -> str | None:
+    """Why a run folder cannot be created or written (None if it can), without creating it."""
+    path = Path(folder).absolute()
+    for parent in (path, *path.parents):
+        if parent.exists():
+            if not parent.is_dir():
+                return f"{parent} is not a folder"
+            if not os.access(parent, os.W_OK | os.X_OK):
+                return f"{parent} is not writable"
+            return None
+    return None
+
+
+def _run_folder(cfg) -> str | None:
+    from hydra.core.utils import setup_globals
+    from omegaconf import OmegaConf
+
+    setup_globals()  # the ${now:...} resolver of the default run folder
+    try:
+        return str(OmegaConf.select(cfg, "hydra.run.dir", throw_on_resolution_failure=True))
+    except Exception:  # a folder pattern only Hydra's own run can resolve: Hydra checks it
+        return None
+
+
+def option_names(cfg) -> list[str]:
+    """Every option of a composed configuration as a dotted name (``solver.time_limit``), Hydra's apart."""
+    from omegaconf import DictConfig, OmegaConf
+
+    names = []
+
+    def walk(node, prefix: str) -> None:
+        for key in node.keys() if isinstance(node, DictConfig) else ():
+            name = f"{prefix}{key}"
+            if name == "hydra":
+                continue
+            names.append(name)
+            child = OmegaConf.select(node, str(key), throw_on_resolution_failure=False)
+            walk(child, f"{name}.")
+
+    walk(cfg, "")
+    return names
+
+
+def _key(override: str) -> str:
+    return override.split("=", 1)[0].lstrip("+~")
+
+
+def unknown_option_problem(config_name: str, overrides: list[str]) -> str | None:
+    """An override that names no option of the configuration, with the nearest real name.
+
+    Covers both ``resolutoin=250`` (Hydra's own hint, "use +resolutoin=250", would add a key
+    that nothing reads and run with the default) and ``+resolutoin=250``. ``hydra.*`` keys
+    are Hydra's and left to it.
+    """
+    import difflib
+
+    plain = [item for item in overrides if "=" in item and not item.startswith(("+", "~"))]
+    groups = [item for item in plain if "." not in _key(item)]
+    cfg, _ = compose_problem(config_name, groups)
+    if cfg is None:
+        cfg, _ = compose_problem(config_name, [])
+    if cfg is None:
+        return None
+    names = option_names(cfg)
+    for item in overrides:
+        key = _key(item)
+        hydras = key.startswith("hydra") or "/" in key  # Hydra's own keys and config-group paths
+        if "=" not in item or hydras or key in names or item.startswith(("~", "++")):
+            continue
+        close = difflib.get_close_matches(key, names, n=1, cutoff=0.6)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        return f"unknown option {key!r}{hint}: nothing reads it, so it is refused rather than ignored"
+    return None
+
+
+def exit_on_bad_command_line(config_name: str, argv: list[str]) -> None:
+    """Exit 2 for an unknown option or value syntax, 6 for an unusable run folder (single runs).
+
+    Runs with Hydra flags (``-m``, ``--help``, ``--cfg``, ...) are left to Hydra.
+    """
+    if any(arg.startswith("-") for arg in argv):
+        return
+    problem = unknown_option_problem(config_name, list(argv))
+    cfg = None
+    if problem is None:
+        cfg, problem = compose_problem(config_name, list(argv))
+    if problem:
+        print(f"spidermatch-{config_name}: bad option: {problem}", file=sys.stderr)
+        sys.exit(EXIT_BAD_INPUT)
+    folder = _run_folder(cfg)
+    reason = unwritable_folder(folder) if folder else None
+    if reason:
+        print(f"spidermatch-{config_name}: cannot write the run folder {folder}: {reason}", file=sys.stderr)
+        sys.exit(EXIT_OUTPUT_ERROR)

@@ -1,0 +1,1 @@
+"""Densification: a map for every full-resolution source vertex from the certified sparse map."""

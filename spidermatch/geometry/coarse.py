@@ -1,0 +1,89 @@
+"""Where the vertices of a full-resolution mesh lie on its decimation, found along the surface.
+
+Projecting a vertex onto the nearest low-resolution triangle in space goes wrong where
+two parts of a body nearly touch (a hand on a hip, the thighs): the nearest triangle
+may belong to the other part. Here every full-resolution vertex first gets the
+low-resolution vertex nearest to it along the edges of the full mesh (its *label*),
+and it may only land on low-resolution triangles around that vertex and its neighbours.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
+
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.remesh import Decimated
+from spidermatch.geometry.surface import closest_triangle_points, face_table, padded_rows
+
+
+def coarse_labels(full: Mesh, low: Decimated) -> np.ndarray:
+    """Low-resolution vertex nearest to each full-resolution vertex along the full mesh's edges.
+
+    Returns
+    -------
+    np.ndarray, shape (V_full,), int64
+        Index into ``low.mesh`` vertices; a vertex of another connected component
+        than every low-resolution vertex gets the nearest one in space.
+
+    """
+    edges = full.edges
+    length = np.linalg.norm(full.verts[edges[:, 0]] - full.verts[edges[:, 1]], axis=1)
+    graph = sp.coo_matrix((np.maximum(length, 1e-12), (edges[:, 0], edges[:, 1])), (full.n_verts,) * 2)
+    _, _, nearest_source = dijkstra(
+        graph.tocsr(), directed=False, indices=np.unique(low.to_full), min_only=True, return_predecessors=True
+    )
+    low_of_full = np.full(full.n_verts, -1, dtype=np.int64)
+    low_of_full[low.to_full] = np.arange(len(low.to_full))
+    labels = np.where(nearest_source >= 0, low_of_full[np.maximum(nearest_source, 0)], -1)
+    unreached = labels < 0
+    if unreached.any():
+        from scipy.spatial import cKDTree
+
+        labels[unreached] = cKDTree(low.mesh.verts).query(full.verts[unreached])[1]
+    return labels
+
+
+def vertex_rings(mesh: Mesh) -> np.ndarray:
+    """Each vertex and its neighbours, shape (V, 1 + max degree), padded with the vertex itself."""
+    edges = mesh.edges
+    neighbours = padded_rows(edges.reshape(-1), edges[:, ::-1].reshape(-1), mesh.n_verts)
+    own = np.arange(mesh.n_verts)[:, None]
+    return np.hstack([own, np.where(neighbours >= 0, neighbours, own)])
+
+
+def ring_faces(mesh: Mesh, vertices: np.ndarray) -> np.ndarray:
+    """Faces around each given vertex and around its neighbours, shape (N, C), padded with -1."""
+    around = face_table(mesh.faces, mesh.n_verts)[vertex_rings(mesh)[vertices]]
+    return around.reshape(len(vertices), -1)
+
+
+def project_onto_coarse(
+    full: Mesh, low: Decimated, clip: bool = True, labels: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each full-resolution vertex's closest point on the low-resolution surface near its label.
+
+    ``labels`` (V_full,): :func:`coarse_labels` of ``full``, if the caller has them already.
+
+    Returns
+    -------
+    face : np.ndarray, shape (V_full,), int64
+        Low-resolution face.
+    bary : np.ndarray, shape (V_full, 3)
+        See :func:`spidermatch.geometry.surface.closest_triangle_points` for ``clip``.
+
+    """
+    if labels is None:
+        labels = coarse_labels(full, low)
+    candidates = ring_faces(low.mesh, labels)
+    mesh = low.mesh
+    return closest_triangle_points(mesh.verts, mesh.faces, full.verts, clip=clip, candidates=candidates)
+
+
+def faces_by_label(full: Mesh, labels: np.ndarray, n_low: int) -> np.ndarray:
+    """Full-resolution faces touching a vertex of each label, shape (n_low, C), padded with -1."""
+    corner_label = labels[full.faces].T.reshape(-1)
+    corner_face = np.tile(np.arange(len(full.faces)), 3)
+    pairs = np.unique(np.stack([corner_label, corner_face], axis=1), axis=0)
+    return padded_rows(pairs[:, 0], pairs[:, 1], n_low)
