@@ -170,7 +170,7 @@ def certified_pair(args, pair: tuple[str, str]) -> dict:
 def _certify(args, pair: tuple[str, str], path: Path) -> None:
     """Features, decimation and the certified solve of one pair, saved to ``path``."""
     from spidermatch.pipeline import MatchSettings, match
-    from spidermatch.solve.highs import SolverOptions
+    from spidermatch.solve.types import SolverOptions
 
     x, y, feat_x, feat_y = load_pair_with_features(
         args.data, pair, args.features, args.checkpoint, args.adapt_steps

@@ -40,8 +40,9 @@ def family_row(curve, graph, model, families, mip: bool, options) -> dict:
     """LP (and optionally integer) figures of the model restricted to ``families``."""
     from spidermatch.model.ilp import build_model
     from spidermatch.model.product_graph import cyclic_runs, split_layers
-    from spidermatch.solve.highs import relative_gap
-    from spidermatch.solve.strategies import count_fractional, solve_lp, solve_with_strategy
+    from spidermatch.solve.rcfix import solve_lp
+    from spidermatch.solve.strategies import solve_with_strategy
+    from spidermatch.solve.types import count_fractional, relative_gap
 
     sub = build_model(graph, curve, model.costs, families)
     start = time.perf_counter()
@@ -77,7 +78,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", default="bench/results/lp_families.json")
     args = parse_checked(parser, argv)
 
-    from spidermatch.solve.highs import SolverOptions
+    from spidermatch.solve.types import SolverOptions
 
     options = SolverOptions(threads=1, time_limit=args.time_limit)
     out = Path(args.out)

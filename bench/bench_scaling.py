@@ -48,7 +48,7 @@ def run_instance(task: tuple) -> dict:
         logging.basicConfig(filename=str(Path(log_dir) / name), level=logging.INFO, force=True)
     from spidermatch.eval.errors import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match
-    from spidermatch.solve.highs import SolverOptions
+    from spidermatch.solve.types import SolverOptions
     from spidermatch.validate import OptionError
 
     start = time.perf_counter()

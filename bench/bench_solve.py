@@ -46,7 +46,7 @@ def run_instance(args: tuple) -> dict:
 
     from spidermatch.eval.errors import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match
-    from spidermatch.solve.highs import SolverOptions
+    from spidermatch.solve.types import SolverOptions
 
     x, y, feat_x, feat_y = load_pair_with_features(data, pair, features, checkpoint)
     solver = SolverOptions(time_limit=time_limit, extra=highs)

@@ -325,8 +325,8 @@ def recognised_pair(source: Mesh, target: Mesh, partial: str) -> PairKind:
 
 def _settings(base, feature_name: str, resolution, time_limit, mip_rel_gap, strategy):
     from spidermatch.pipeline import MatchSettings
-    from spidermatch.solve.highs import SolverOptions
     from spidermatch.solve.strategies import AUTO, strategy_for
+    from spidermatch.solve.types import SolverOptions
 
     if base is None:
         base = MatchSettings(

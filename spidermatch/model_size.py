@@ -18,11 +18,9 @@ from __future__ import annotations
 
 import logging
 import math
-import os
-import resource
 from dataclasses import dataclass
-from pathlib import Path
 
+from spidermatch.memory import GIB, available_memory
 from spidermatch.validate import OptionError
 
 logger = logging.getLogger(__name__)
@@ -38,7 +36,6 @@ BASE_BYTES = 1 << 30
 """What a match process holds besides the model (interpreter, libraries, meshes, features)."""
 
 FULL_MODEL = "full"
-GIB = float(1 << 30)
 
 
 @dataclass(frozen=True)
@@ -82,49 +79,6 @@ def estimate(faces_x: int, faces_y: int, resolution: int, strategy: str, target_
     columns = expected_columns(low_x, low_y, target_augmented)
     peak = BASE_BYTES + columns * BYTES_PER_COLUMN[strategy_kind(strategy)]
     return ModelEstimate(low_x, low_y, columns, int(peak))
-
-
-def available_memory() -> int | None:
-    """Bytes this process may still allocate: the least of free memory, its cgroup's and RLIMIT_AS's room.
-
-    None where none of them can be read (then nothing is refused).
-    """
-    limits = [_mem_available(), _cgroup_room()]
-    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
-    if soft != resource.RLIM_INFINITY:
-        limits.append(soft - _own_address_space())
-    known = [limit for limit in limits if limit is not None]
-    return max(min(known), 0) if known else None
-
-
-def _mem_available() -> int | None:
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        return None
-    return None
-
-
-def _cgroup_room() -> int | None:
-    try:
-        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
-        if limit == "max":
-            return None
-        return int(limit) - int(Path("/sys/fs/cgroup/memory.current").read_text())
-    except (OSError, ValueError):
-        return None
-
-
-def _own_address_space() -> int:
-    try:
-        for line in Path(f"/proc/{os.getpid()}/status").read_text().splitlines():
-            if line.startswith("VmSize:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return 0
 
 
 def largest_fitting_resolution(room: int, strategy: str, target_augmented: bool = False) -> int:

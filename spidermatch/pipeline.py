@@ -37,9 +37,9 @@ from spidermatch.model.ilp import FAMILIES, IlpModel
 from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import ProductGraph, build_product_graph
 from spidermatch.model_size import check_model_fits
-from spidermatch.solve.highs import SolveResult, SolverOptions
 from spidermatch.solve.isolate import solve_isolated
 from spidermatch.solve.strategies import LAZY_STRATEGIES, solve_with_strategy
+from spidermatch.solve.types import SolveResult, SolverOptions
 from spidermatch.validate import check_settings
 
 logger = logging.getLogger(__name__)

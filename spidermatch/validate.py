@@ -10,14 +10,9 @@ mesh not far below the requested resolution.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
-
-import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from spidermatch.dense.densify import settings_problems as dense_settings_problems
-from spidermatch.geometry.mesh import Mesh, MeshError, face_edges
+from spidermatch.geometry.mesh import Mesh, MeshError
 from spidermatch.model.curve import MATCHINGS
 from spidermatch.values import is_finite, is_number, is_whole, show
 
@@ -224,44 +219,6 @@ def check_settings(settings, solver_prefix: str = "solver.") -> None:
     if settings.decimation not in DECIMATIONS:
         problems.append(f"decimation={show(settings.decimation)}: choose from {', '.join(DECIMATIONS)}")
     raise_problems(problems)
-
-
-@dataclass(frozen=True)
-class Topology:
-    """Topological type of a connected, manifold triangle mesh.
-
-    Attributes
-    ----------
-    euler : int
-        V - E + F.
-    boundaries : int
-        Number of boundary loops.
-    genus : int
-        (2 - euler - boundaries) / 2.
-
-    """
-
-    euler: int
-    boundaries: int
-    genus: int
-
-    def __str__(self) -> str:
-        loops = "closed" if not self.boundaries else f"{self.boundaries} boundary loop(s)"
-        return f"genus {self.genus}, {loops}"
-
-
-def topology(mesh: Mesh) -> Topology:
-    """Genus and boundary loops of a validated (connected, manifold) mesh."""
-    edges, counts = np.unique(face_edges(mesh.faces).reshape(-1, 2), axis=0, return_counts=True)
-    euler = mesh.n_verts - len(edges) + mesh.n_faces
-    boundary = edges[counts == 1]
-    loops = 0
-    if len(boundary):
-        nodes, index = np.unique(boundary, return_inverse=True)
-        index = index.reshape(-1, 2)
-        graph = sp.coo_matrix((np.ones(len(index)), (index[:, 0], index[:, 1])), shape=(nodes.size,) * 2)
-        loops = connected_components(graph, directed=False)[0]
-    return Topology(int(euler), int(loops), int((2 - euler - loops) // 2))
 
 
 def check_ground_truth(source_corr, target_corr, source_name: str, target_name: str) -> None:

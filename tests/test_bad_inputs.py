@@ -276,7 +276,7 @@ def test_a_free_folder_gets_its_config_saved(tmp_path):
 
 def test_a_loose_requested_gap_is_not_called_optimal():
     from spidermatch.pipeline import OPTIMAL_GAP, within_optimal_gap
-    from spidermatch.solve.highs import SolveResult
+    from spidermatch.solve.types import SolveResult
 
     loose = SolveResult("optimal", None, 1.13, 1.0, 0.115, 1.0, 1, 1, 1, "Optimal")
     judged = within_optimal_gap(loose)

@@ -11,8 +11,9 @@ from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import build_product_graph
 from spidermatch.solve.colgen import price, stay_seed
 from spidermatch.solve.fixing import dual_bound, sign_corrected_duals
-from spidermatch.solve.highs import SolverOptions
-from spidermatch.solve.strategies import solve_plain, solve_with_strategy
+from spidermatch.solve.plain import solve_plain
+from spidermatch.solve.strategies import solve_with_strategy
+from spidermatch.solve.types import SolverOptions
 from tests.test_ilp import TRIANGLE, brute_force
 
 EXACT = SolverOptions(mip_rel_gap=0.0)
@@ -155,7 +156,7 @@ def test_a_mip_stopped_above_its_outside_bound_widens_and_still_certifies_the_op
     import math
 
     import spidermatch.solve.colgen as colgen
-    from spidermatch.solve.highs import SolveResult
+    from spidermatch.solve.types import SolveResult
 
     lazy = creature_lazy(24, 3)
     plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
@@ -186,7 +187,7 @@ def test_no_wider_mip_starts_with_too_little_time_left_and_the_answer_stays_hone
     import math
 
     import spidermatch.solve.colgen as colgen
-    from spidermatch.solve.highs import SolveResult
+    from spidermatch.solve.types import SolveResult
 
     lazy = creature_lazy(24, 3)
     plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
@@ -211,14 +212,13 @@ def test_no_wider_mip_starts_with_too_little_time_left_and_the_answer_stays_hone
 
 def test_a_mip_that_would_not_fit_in_memory_is_not_started_and_the_answer_stays_honest(monkeypatch):
     """No memory for the first MIP: the stay path (or the LP's), the LP bound, `feasible`, and why."""
-    import spidermatch.model_size as model_size
     import spidermatch.solve.colgen as colgen
 
     lazy = creature_lazy(24, 3)
     plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
     monkeypatch.setattr(colgen, "_restricted_mip", lambda *args: pytest.fail("a MIP was started"))
     monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)
-    monkeypatch.setattr(model_size, "available_memory", lambda: 1024)  # 1 KiB left
+    monkeypatch.setattr(colgen, "available_memory", lambda: 1024)  # 1 KiB left
     solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, replace(EXACT, time_limit=600.0))
     assert solved.status == "feasible" and "would need about" in solved.message
     assert solved.bound <= plain.objective * (1 + 1e-9) <= solved.objective * (1 + 1e-9)
@@ -310,6 +310,6 @@ def test_full_model_figures_of_an_interrupted_mip_take_the_lp_bound_without_a_mi
 
 def test_every_strategy_raises_the_one_lp_not_solved():
     """An ``except LpNotSolved`` must catch a stopped LP from either module (there were two classes)."""
-    from spidermatch.solve import colgen, highs, strategies
+    from spidermatch.solve import colgen, rcfix, types
 
-    assert colgen.LpNotSolved is strategies.LpNotSolved is highs.LpNotSolved
+    assert colgen.LpNotSolved is rcfix.LpNotSolved is types.LpNotSolved

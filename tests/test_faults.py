@@ -22,9 +22,8 @@ from spidermatch.cli.main import run_eval, run_match
 from spidermatch.cli.resume import file_identity, rerun_reason
 from spidermatch.data.datasets import SyntheticShapes, write_dataset
 from spidermatch.geometry.io import load_mesh, read_vts, save_mesh
-from spidermatch.geometry.mesh import Mesh, MeshError
+from spidermatch.geometry.mesh import Mesh, MeshError, topology
 from spidermatch.solve.highs import SolverOptionError, set_option
-from spidermatch.validate import topology
 
 SMALL = ["data.n_verts=700", "resolution=60", "output.png=false"]
 

@@ -12,8 +12,10 @@ from spidermatch.model.curve import SpiderCurve, spider_curve
 from spidermatch.model.ilp import ConstraintBlock, IlpModel, build_model, cyc_block, stack_blocks
 from spidermatch.model.product_graph import INTER, INTRA, STAY, build_product_graph, cyclic_runs, split_layers
 from spidermatch.pipeline import InfeasibleError, MatchResult
-from spidermatch.solve.highs import SolverOptions, solve_model
-from spidermatch.solve.strategies import solve_plain, solve_with_strategy
+from spidermatch.solve.highs import solve_model
+from spidermatch.solve.plain import solve_plain
+from spidermatch.solve.strategies import solve_with_strategy
+from spidermatch.solve.types import SolverOptions
 
 TRIANGLE = np.array([[0, 1], [1, 2], [0, 2]])
 
@@ -219,7 +221,7 @@ def creature_instance(faces, seed):
 
 def test_dual_bound_is_valid_for_any_multipliers_and_fixing_keeps_the_optimum(rng):
     from spidermatch.solve.fixing import dual_bound
-    from spidermatch.solve.strategies import solve_lp
+    from spidermatch.solve.rcfix import solve_lp
 
     curve, graph, model = creature_instance(24, seed=3)
     optimum = solve_plain(model, graph, curve, SolverOptions(mip_rel_gap=0.0))
@@ -237,14 +239,14 @@ def test_dual_bound_is_valid_for_any_multipliers_and_fixing_keeps_the_optimum(rn
 
 @pytest.mark.parametrize("seed", [3, 7])
 def test_rcfix_matches_plain_when_it_needs_the_fixing_phase(seed, monkeypatch, caplog):
-    import spidermatch.solve.strategies as strategies
+    import spidermatch.solve.rcfix as rcfix
 
     curve, graph, model = creature_instance(24, seed=seed)
     plain = solve_plain(model, graph, curve, SolverOptions(mip_rel_gap=0.0))
     # seed the first restricted MIP with the LP support only, so the later phases must run
-    monkeypatch.setattr(strategies, "SEED_GAP", 0.0)
-    monkeypatch.setattr(strategies, "SEED_FRACTION", 0.0)
-    with caplog.at_level("INFO", logger="spidermatch.solve.strategies"):
+    monkeypatch.setattr(rcfix, "SEED_GAP", 0.0)
+    monkeypatch.setattr(rcfix, "SEED_FRACTION", 0.0)
+    with caplog.at_level("INFO", logger="spidermatch.solve.rcfix"):
         fixed = solve_with_strategy("rcfix", model, graph, curve, SolverOptions(mip_rel_gap=0.0))
     assert "rcfix phase 2" in caplog.text
     assert fixed.status == "optimal" and plain.status == "optimal"
@@ -343,7 +345,7 @@ def test_a_run_that_overruns_its_time_limit_is_interrupted_and_waited_for(monkey
 
 def test_two_cycle_cuts_cover_the_two_cycles_of_the_chosen_layers_once():
     from spidermatch.solve.connectivity import two_cycle_components
-    from spidermatch.solve.strategies import CutPool
+    from spidermatch.solve.cuts import CutPool
 
     graph, _, optimum, detached = square_instance_with_detached_copy()
     everything = np.arange(graph.n_edges)
@@ -362,8 +364,8 @@ def test_two_cycle_cuts_cover_the_two_cycles_of_the_chosen_layers_once():
 def test_session_records_improving_solutions_and_restart_skips_detached_ones():
     from types import SimpleNamespace
 
+    from spidermatch.solve.cuts import cheapest_connected
     from spidermatch.solve.highs import HighsSession
-    from spidermatch.solve.strategies import cheapest_connected
 
     curve, graph, model = creature_instance(24, seed=3)
     session = HighsSession(model, SolverOptions(mip_rel_gap=0.0))
@@ -382,7 +384,7 @@ def test_session_records_improving_solutions_and_restart_skips_detached_ones():
 
 
 def test_reported_mip_bound_is_only_what_the_gap_tolerance_proves():
-    from spidermatch.solve.highs import certified_mip_bound
+    from spidermatch.solve.types import certified_mip_bound
 
     # HiGHS reports the incumbent as its dual bound once it has pruned everything within the gap
     assert certified_mip_bound(2.0, 2.0, 1e-4) == pytest.approx(2.0 * (1 - 1e-4))
@@ -453,8 +455,8 @@ def test_a_mip_stops_once_stop_when_says_so():
 
     import highspy
 
+    from spidermatch.solve.cuts import solve_with_cuts
     from spidermatch.solve.highs import HighsSession
-    from spidermatch.solve.strategies import solve_with_cuts
 
     curve, graph, model = creature_instance(24, seed=3)
     session = HighsSession(model, SolverOptions(mip_rel_gap=0.0))
@@ -479,8 +481,8 @@ def test_a_time_limit_between_cut_rounds_keeps_the_cheapest_connected_solution()
     """Not 'no solution' while a closed path is known: the cheapest connected one, marked feasible."""
     from types import SimpleNamespace
 
-    from spidermatch.solve.highs import SolveResult
-    from spidermatch.solve.strategies import _stopped_while_separating
+    from spidermatch.solve.cuts import _stopped_while_separating
+    from spidermatch.solve.types import SolveResult
 
     graph, costs, optimum, detached = square_instance_with_detached_copy()
     last = SolveResult("optimal", detached, costs @ detached, costs @ detached - 1.0, 0.0, 1.0, 1, 1, 1)
@@ -516,8 +518,9 @@ def test_a_run_after_one_stopped_on_request_is_not_stopped_by_the_old_request():
 def test_a_mip_stopped_on_request_with_detached_cycles_keeps_its_bound_and_cuts_without_a_re_solve(
     monkeypatch,
 ):
-    from spidermatch.solve.highs import HighsSession, SolveResult
-    from spidermatch.solve.strategies import CutPool, solve_with_cuts
+    from spidermatch.solve.cuts import CutPool, solve_with_cuts
+    from spidermatch.solve.highs import HighsSession
+    from spidermatch.solve.types import SolveResult
 
     graph, costs, optimum, detached = square_instance_with_detached_copy()
     curve = SpiderCurve(np.array([0, 1, 0, 2]), 3)

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from spidermatch.solve import isolate
-from spidermatch.solve.highs import SolveResult, SolverOptions
 from spidermatch.solve.isolate import KnownFigures, describe_exit, solve_isolated
 from spidermatch.solve.progress import report_known
+from spidermatch.solve.types import SolveResult, SolverOptions
 
 MODEL = SimpleNamespace(n_vars=7, n_rows=3, nnz=12)
 

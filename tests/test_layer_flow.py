@@ -5,9 +5,9 @@ from scipy.optimize import linprog
 from spidermatch.model.ilp import build_model
 from spidermatch.model.product_graph import INTER, INTRA, STAY
 from spidermatch.solve.connectivity import detached_components
-from spidermatch.solve.highs import SolverOptions
+from spidermatch.solve.cuts import CutPool, solve_with_cuts
 from spidermatch.solve.layer_flow import flow_values, layer_flow
-from spidermatch.solve.strategies import CutPool, solve_with_cuts
+from spidermatch.solve.types import SolverOptions
 from tests.test_ilp import (
     TRIANGLE,
     brute_force,
@@ -125,9 +125,9 @@ def test_a_detached_cycle_puts_its_layer_and_the_layers_of_its_source_vertex_und
 
 
 def test_a_start_with_a_detached_cycle_is_not_offered_once_flow_rows_exist(caplog):
+    from spidermatch.solve.cuts import _offer
     from spidermatch.solve.highs import HighsSession
     from spidermatch.solve.layer_flow import SessionFlows
-    from spidermatch.solve.strategies import _offer
 
     _, _, optimum, detached = square_instance_with_detached_copy()
     curve, graph, costs = instance([0, 1, 0, 2], SQUARE, 4, 4)  # the same instance

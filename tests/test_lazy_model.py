@@ -63,7 +63,8 @@ def test_blockwise_full_model_equals_build_model():
 
 
 def test_compact_submodel_drops_only_rows_that_zero_satisfies_and_keeps_every_optimum():
-    from spidermatch.solve.highs import HighsSession, SolverOptions
+    from spidermatch.solve.highs import HighsSession
+    from spidermatch.solve.types import SolverOptions
 
     lazy, _ = small_problem()
     rng = np.random.default_rng(2)
@@ -83,7 +84,8 @@ def test_compact_submodel_drops_only_rows_that_zero_satisfies_and_keeps_every_op
 
 
 def test_compact_submodel_keeps_the_cycle_row_of_a_layer_without_columns():
-    from spidermatch.solve.highs import HighsSession, SolverOptions
+    from spidermatch.solve.highs import HighsSession
+    from spidermatch.solve.types import SolverOptions
 
     lazy, _ = small_problem()
     block = lazy.graph.block_size

@@ -13,7 +13,7 @@ from spidermatch.cli.main import run_match
 from spidermatch.data.synthetic import make_creature
 from spidermatch.geometry.descriptors import WKSExtractor
 from spidermatch.geometry.io import load_mesh, save_mesh
-from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
+from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh, topology
 from spidermatch.geometry.partial import (
     covered_target,
     holes_cut,
@@ -24,7 +24,6 @@ from spidermatch.geometry.partial import (
     rigid_fit_residual,
     view_cut,
 )
-from spidermatch.validate import topology
 from train.losses import cut_consistency_loss
 
 

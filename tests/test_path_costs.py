@@ -5,9 +5,9 @@ import pytest
 
 from spidermatch.solve.colgen import by_path, generate_columns, price, stay_seed
 from spidermatch.solve.fixing import sign_corrected_duals
-from spidermatch.solve.highs import SolverOptions
 from spidermatch.solve.path_costs import path_reduced_costs
-from spidermatch.solve.strategies import solve_plain
+from spidermatch.solve.plain import solve_plain
+from spidermatch.solve.types import SolverOptions
 from tests.test_colgen import creature_lazy, tiny_lazy
 from tests.test_ilp import checked_walks
 

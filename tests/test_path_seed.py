@@ -4,9 +4,9 @@ import pytest
 from spidermatch.model.lazy_model import LazyModel
 from spidermatch.solve.colgen import path_band_seed
 from spidermatch.solve.connectivity import detached_components
-from spidermatch.solve.highs import SolverOptions
 from spidermatch.solve.path_seed import cheapest_closed_path, path_plausible
-from spidermatch.solve.strategies import solve_plain
+from spidermatch.solve.plain import solve_plain
+from spidermatch.solve.types import SolverOptions
 from tests.test_colgen import creature_lazy
 
 EXACT = SolverOptions(mip_rel_gap=0.0)

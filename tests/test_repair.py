@@ -5,9 +5,10 @@ from spidermatch.model.correspondence import active_edges, check_solution
 from spidermatch.model.curve import SpiderCurve
 from spidermatch.model.ilp import build_model
 from spidermatch.solve.connectivity import connectivity_cuts, detached_components
-from spidermatch.solve.highs import SolverOptions
+from spidermatch.solve.cuts import CutPool
+from spidermatch.solve.plain import solve_plain
 from spidermatch.solve.repair import freed_layers, repair_detached, window_layers
-from spidermatch.solve.strategies import CutPool, solve_plain
+from spidermatch.solve.types import SolverOptions
 from tests.test_ilp import creature_instance, square_instance_with_detached_copy
 
 EXACT = SolverOptions(mip_rel_gap=0.0)
@@ -56,7 +57,7 @@ def test_a_run_stops_in_time_for_a_repair_only_when_its_best_solution_has_detach
     import time
     from types import SimpleNamespace
 
-    from spidermatch.solve.strategies import _leaving_time_to_repair
+    from spidermatch.solve.cuts import _leaving_time_to_repair
 
     session = SimpleNamespace(best_usable=415.2, best_unusable=2.01)
     late = _leaving_time_to_repair(session, None, SolverOptions(time_limit=10.0), time.perf_counter() - 9.0)

@@ -11,7 +11,7 @@ import pytest
 from features.extractor import WKSExtractor
 from spidermatch.data.synthetic import make_creature
 from spidermatch.pipeline import MatchSettings, match
-from spidermatch.solve.highs import SolverOptions
+from spidermatch.solve.types import SolverOptions
 
 pytestmark = pytest.mark.slow
 

@@ -54,7 +54,8 @@ def main() -> None:
     from spidermatch.pipeline import MatchSettings, prepare
     from spidermatch.solve.colgen import generate_columns, path_band_seed, stay_seed
     from spidermatch.solve.connectivity import connectivity_cuts
-    from spidermatch.solve.highs import HighsSession, SolverOptions
+    from spidermatch.solve.highs import HighsSession
+    from spidermatch.solve.types import SolverOptions
 
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter

@@ -32,8 +32,8 @@ from spidermatch.geometry.partial import PairKind, announce_pair, overlap_summar
 from spidermatch.model.costs import RobustLoss
 from spidermatch.model_size import check_meshes_fit
 from spidermatch.pipeline import MatchError, MatchResult, MatchSettings, add_dense_map, match
-from spidermatch.solve.highs import SolverOptions
 from spidermatch.solve.strategies import strategy_for
+from spidermatch.solve.types import SolverOptions
 from spidermatch.validate import (
     OptionError,
     check_ground_truth,

@@ -476,3 +476,41 @@ def mean_incident_edge_length(mesh: Mesh) -> np.ndarray:
     total = np.bincount(edges.reshape(-1), np.repeat(mesh.edge_lengths, 2), minlength=mesh.n_verts)
     count = np.bincount(edges.reshape(-1), minlength=mesh.n_verts)
     return total / np.maximum(count, 1)
+
+
+@dataclass(frozen=True)
+class Topology:
+    """Topological type of a connected, manifold triangle mesh.
+
+    Attributes
+    ----------
+    euler : int
+        V - E + F.
+    boundaries : int
+        Number of boundary loops.
+    genus : int
+        (2 - euler - boundaries) / 2.
+
+    """
+
+    euler: int
+    boundaries: int
+    genus: int
+
+    def __str__(self) -> str:
+        loops = "closed" if not self.boundaries else f"{self.boundaries} boundary loop(s)"
+        return f"genus {self.genus}, {loops}"
+
+
+def topology(mesh: Mesh) -> Topology:
+    """Genus and boundary loops of a validated (connected, manifold) mesh."""
+    edges, counts = np.unique(face_edges(mesh.faces).reshape(-1, 2), axis=0, return_counts=True)
+    euler = mesh.n_verts - len(edges) + mesh.n_faces
+    boundary = edges[counts == 1]
+    loops = 0
+    if len(boundary):
+        nodes, index = np.unique(boundary, return_inverse=True)
+        index = index.reshape(-1, 2)
+        graph = sp.coo_matrix((np.ones(len(index)), (index[:, 0], index[:, 1])), shape=(nodes.size,) * 2)
+        loops = connected_components(graph, directed=False)[0]
+    return Topology(int(euler), int(loops), int((2 - euler - loops) // 2))

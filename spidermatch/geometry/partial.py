@@ -18,7 +18,14 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
-from spidermatch.geometry.mesh import Mesh, MeshError, face_edges, mean_incident_edge_length, vertex_fans
+from spidermatch.geometry.mesh import (
+    Mesh,
+    MeshError,
+    face_edges,
+    mean_incident_edge_length,
+    topology,
+    vertex_fans,
+)
 from spidermatch.geometry.surface import occluded
 
 logger = logging.getLogger(__name__)
@@ -300,8 +307,6 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
         and what to do.
 
     """
-    from spidermatch.validate import topology
-
     top_x, top_y = topology(source), topology(target)
     ratio = source.area / target.area
     if (top_x.genus, top_x.boundaries) == (top_y.genus, top_y.boundaries):

@@ -68,24 +68,26 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse as sp
 
+from spidermatch.memory import GIB, available_memory
 from spidermatch.model.curve import SpiderCurve
 from spidermatch.model.ilp import IlpModel
 from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import INTRA, ProductGraph
 from spidermatch.shutdown import RunInterrupted
 from spidermatch.solve.connectivity import detached_components
+from spidermatch.solve.cuts import CutPool, imposes_paths, solve_with_cuts
 from spidermatch.solve.fixing import sign_corrected_duals
-from spidermatch.solve.highs import HighsSession, LpNotSolved, SolveResult, SolverOptions, relative_gap
+from spidermatch.solve.highs import LP_EXTRA, HighsSession
 from spidermatch.solve.path_costs import path_reduced_costs
 from spidermatch.solve.path_seed import cheapest_closed_path, path_plausible
 from spidermatch.solve.progress import report_known
-from spidermatch.solve.strategies import (
-    LP_EXTRA,
-    CutPool,
+from spidermatch.solve.types import (
+    LpNotSolved,
+    SolveResult,
+    SolverOptions,
     count_fractional,
-    imposes_paths,
+    relative_gap,
     remaining,
-    solve_with_cuts,
 )
 
 logger = logging.getLogger(__name__)
@@ -524,8 +526,6 @@ def mip_memory_problem(n_columns: int, room: int | None = None) -> str | None:
 
     ``room``: bytes this process may still allocate (default: :func:`available_memory`; None: unknown).
     """
-    from spidermatch.model_size import GIB, available_memory
-
     room = available_memory() if room is None else room
     needed = n_columns * MIP_BYTES_PER_COLUMN
     if room is None or needed <= room:

@@ -8,11 +8,9 @@ from __future__ import annotations
 
 import logging
 import math
-import os
-import queue
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import highspy
 import numpy as np
@@ -20,16 +18,32 @@ import scipy.sparse as sp
 
 from spidermatch import shutdown
 from spidermatch.model.ilp import IlpModel
+from spidermatch.solve.interrupt import OVERRUN_GRACE_S, run_interruptibly
 from spidermatch.solve.progress import ProgressLog, report_known
+from spidermatch.solve.types import (
+    SolveResult,
+    SolverOptions,
+    certified_mip_bound,
+    finite_or_none,
+    interrupted_figures,
+    relative_gap,
+)
 
 logger = logging.getLogger(__name__)
+
 
 # HiGHS 1.16's root reduced-cost heuristic aborted the process (free(): invalid pointer) in
 # the presolve of its sub-MIP: docs/solver_failures.md, bench/repro/highs_submip_presolve_abort.py
 HIGHS_WORKAROUNDS = {"mip_heuristic_run_root_reduced_cost": False}
 KEEP_IMPROVING = 16  # improving solutions a session keeps (a full-model vector is 30 MB at 1000 faces)
+
+
 _PROCESS_THREADS: int | None = None  # HiGHS fixes its thread pool at the first solve of a process
+
+
 _STATUS = highspy.HighsModelStatus
+
+
 _STOPPED = {
     _STATUS.kTimeLimit,
     _STATUS.kIterationLimit,
@@ -38,116 +52,6 @@ _STOPPED = {
     _STATUS.kObjectiveBound,
     _STATUS.kObjectiveTarget,
 }
-
-
-@dataclass(frozen=True)
-class SolverOptions:
-    """Options of one HiGHS solve.
-
-    Attributes
-    ----------
-    time_limit : float
-        Seconds; ``inf`` for none.
-    mip_rel_gap : float
-        Stop when (objective - bound) / objective <= this (HiGHS's default is 1e-4).
-    threads : int
-        Worker threads (0: HiGHS chooses). Fixed for the whole process by the first solve.
-    presolve : str
-        "choose", "on" or "off".
-    log : bool
-        Show HiGHS's own log.
-    extra : dict
-        Any further HiGHS options by name.
-
-    """
-
-    time_limit: float = math.inf
-    mip_rel_gap: float = 1e-4
-    threads: int = 0
-    presolve: str = "choose"
-    log: bool = False
-    extra: dict = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class SolveResult:
-    """Outcome of a solve.
-
-    Attributes
-    ----------
-    status : str
-        "optimal" (within ``mip_rel_gap``), "feasible" (stopped with an incumbent, not
-        proven), "infeasible", "no_solution" (stopped before any incumbent) or "error".
-    x : np.ndarray, shape (n,), or None
-        The solution, rounded to 0/1 for MIPs.
-    objective, bound, gap : float
-        Incumbent value, best proven lower bound, relative gap (nan when undefined).
-    wall_time : float
-    n_vars, n_rows, nnz : int
-    message : str
-        HiGHS's model status in words.
-
-    """
-
-    status: str
-    x: np.ndarray | None
-    objective: float
-    bound: float
-    gap: float
-    wall_time: float
-    n_vars: int
-    n_rows: int
-    nnz: int
-    message: str = ""
-    cut_rounds: int = 0
-    columns_built: int | None = None  # columns a strategy that never builds the full model did build
-
-    @property
-    def proven_optimal(self) -> bool:
-        """True if the solution is certified optimal within the relative gap."""
-        return self.status == "optimal"
-
-    def summary(self) -> dict:
-        """JSON-ready figures (no solution vector)."""
-        return {
-            "status": self.status,
-            "proven_optimal": self.proven_optimal,
-            "objective": _finite_or_none(self.objective),
-            "bound": _finite_or_none(self.bound),
-            "gap": _finite_or_none(self.gap),
-            "solve_time_s": round(self.wall_time, 3),
-            "variables": self.n_vars,
-            "rows": self.n_rows,
-            "nonzeros": self.nnz,
-            "message": self.message,
-            "columns_built": self.columns_built,
-        }
-
-
-def _finite_or_none(value: float) -> float | None:
-    return float(value) if value is not None and math.isfinite(value) else None
-
-
-def relative_gap(objective: float, bound: float) -> float:
-    """(objective - bound) / |objective|, 0 when both are 0, nan when undefined."""
-    if not (math.isfinite(objective) and math.isfinite(bound)):
-        return math.nan
-    if objective == bound:
-        return 0.0
-    return max(objective - bound, 0.0) / max(abs(objective), 1e-300)
-
-
-def certified_mip_bound(dual_bound: float, incumbent: float, rel_gap: float) -> float:
-    """A lower bound that HiGHS's branch and bound really proves.
-
-    HiGHS prunes every node whose bound is within the relative gap of the incumbent
-    and, once none is left, reports the incumbent itself as its dual bound. Only
-    ``incumbent - rel_gap * |incumbent|`` is proven for what was pruned, so the bound
-    is the smaller of the two (the reported one alone when there is no incumbent).
-    """
-    if not math.isfinite(incumbent):
-        return dual_bound
-    return min(dual_bound, incumbent - rel_gap * abs(incumbent))
 
 
 _INTERRUPT_CALLBACKS = (
@@ -366,9 +270,9 @@ class HighsSession:
         incumbent, dual = self.last_mip
         bound = certified_mip_bound(dual, incumbent, self.options.mip_rel_gap)
         return {
-            "incumbent_objective": _finite_or_none(incumbent),
-            "bound": _finite_or_none(bound),
-            "gap": _finite_or_none(relative_gap(incumbent, bound)),
+            "incumbent_objective": finite_or_none(incumbent),
+            "bound": finite_or_none(bound),
+            "gap": finite_or_none(relative_gap(incumbent, bound)),
             "solver_message": "HiGHS had not stopped yet; figures from its last progress report",
         }
 
@@ -440,112 +344,6 @@ class HighsSession:
         return result
 
 
-class _SolverThread:
-    """One long-lived daemon thread that runs every HiGHS solve of the process.
-
-    The main thread waits in Python, so a signal handler runs at once (it cannot while the
-    main thread is inside C++); and HiGHS always sees the same calling thread, as it did
-    when it ran on the main thread.
-    """
-
-    def __init__(self) -> None:
-        self.jobs: queue.Queue = queue.Queue()
-        self.thread: threading.Thread | None = None
-
-    def submit(self, job) -> threading.Event:
-        """Run ``job()`` on the solver thread; the returned event is set when it has finished."""
-        if self.thread is None or not self.thread.is_alive():
-            self.thread = threading.Thread(target=self._work, args=(self.jobs,), name="highs", daemon=True)
-            self.thread.start()
-        done = threading.Event()
-        self.jobs.put((job, done))
-        return done
-
-    @staticmethod
-    def _work(jobs: queue.Queue) -> None:
-        while True:
-            job, done = jobs.get()
-            try:
-                job()
-            finally:
-                done.set()
-
-
-_SOLVER_THREAD = _SolverThread()
-
-
-def fresh_in_child() -> None:
-    """In a forked child: a solver thread of its own (the parent's is not in the child).
-
-    HiGHS's thread pool is per calling thread, so the child's first solve starts a new one.
-    Registered to run after every ``fork`` (the solver process, a user's
-    ``multiprocessing.Pool`` worker), as a solve there would otherwise wait forever on the
-    parent's thread.
-    """
-    global _SOLVER_THREAD
-    _SOLVER_THREAD = _SolverThread()
-
-
-os.register_at_fork(after_in_child=fresh_in_child)
-
-
-STOP_GRACE_S = 1.0  # after a signal, how long to wait for HiGHS to reach an interrupt check
-OVERRUN_GRACE_S = 2.0  # how far HiGHS may run past its time limit before it is interrupted (callbacks)
-
-
-def run_interruptibly(highs, figures_so_far, cancel: threading.Event, deadline: float | None = None) -> None:
-    """``highs.run()`` on the solver thread, stopped by SIGINT/SIGTERM or at ``deadline``.
-
-    On a signal HiGHS's interrupt callbacks stop the solve at its next check. HiGHS does
-    not check during presolve or some heuristics, which can last minutes; if it has not
-    stopped within ``STOP_GRACE_S`` the solve is abandoned (it dies with the process) and
-    :class:`~spidermatch.shutdown.RunInterrupted` carries ``figures_so_far()``.
-
-    HiGHS's own time limit is not checked in those phases either (a 65 s MIP at 1000 faces
-    ran 164 s). Past ``deadline`` (``time.perf_counter()`` seconds) ``cancel`` is set, which
-    the callbacks turn into HiGHS's own interrupt (``user_interrupt``), and the run is waited
-    for: a run is never left running while the process goes on (a solver thread left behind
-    could use memory that Python or HiGHS has meanwhile freed or reused, and ran concurrently
-    with the next solve). Returns when ``highs.run()`` has finished.
-    """
-    failure: list[BaseException] = []
-
-    def job() -> None:
-        try:
-            highs.run()
-        except BaseException as error:  # re-raised on the calling thread
-            failure.append(error)
-
-    with shutdown.native_call():
-        done = _SOLVER_THREAD.submit(job)
-        try:
-            while not done.wait(0.05):
-                if shutdown.stop_requested() and not done.wait(STOP_GRACE_S):
-                    shutdown.abandon_native_work()
-                    shutdown.raise_if_stopped(figures_so_far())
-                if deadline is not None and time.perf_counter() > deadline and not cancel.is_set():
-                    logger.warning(
-                        "HiGHS is %.0f s past its time limit: interrupting it at its next check",
-                        OVERRUN_GRACE_S,
-                    )
-                    cancel.set()
-        except BaseException:  # e.g. KeyboardInterrupt without spidermatch's handler: stop HiGHS too
-            cancel.set()
-            raise
-    if failure:
-        raise failure[0]
-
-
-def interrupted_figures(result: SolveResult) -> dict:
-    """What an interrupted solve knew: HiGHS's incumbent (unchecked) and its bound, JSON-ready."""
-    return {
-        "incumbent_objective": _finite_or_none(result.objective),
-        "bound": _finite_or_none(result.bound),
-        "gap": _finite_or_none(result.gap),
-        "solver_message": result.message,
-    }
-
-
 def solve_model(
     model: IlpModel,
     options: SolverOptions | None = None,
@@ -610,12 +408,4 @@ def _read_result(session: HighsSession, wall: float) -> SolveResult:
     )
 
 
-class LpNotSolved(Exception):
-    """An LP (the relaxation or a restricted LP) stopped (time limit) or failed; carries HiGHS's result.
-
-    One class for every strategy, so that an ``except LpNotSolved`` catches it wherever it was raised.
-    """
-
-    def __init__(self, result: SolveResult) -> None:
-        super().__init__(result.message)
-        self.result = result
+LP_EXTRA = {"solver": "simplex", "simplex_strategy": 1}  # dual simplex: ~5x faster here than IPM

@@ -39,9 +39,9 @@ import time
 import numpy as np
 
 from spidermatch import shutdown
-from spidermatch.solve import highs as highs_module
-from spidermatch.solve.highs import SolveResult, SolverOptions, relative_gap
+from spidermatch.solve import interrupt
 from spidermatch.solve.progress import set_known_sink
+from spidermatch.solve.types import SolveResult, SolverOptions, relative_gap
 
 PR_SET_PDEATHSIG = 1  # prctl(2): the signal a process gets when its parent dies
 
@@ -192,7 +192,7 @@ def _child_main(receiver, sender, solve, model, graph, curve, options) -> None:
     receiver.close()  # the parent's end
     _die_with_parent()
     shutdown.fresh_in_child()
-    highs_module.fresh_in_child()
+    interrupt.fresh_in_child()
     lock, known = threading.Lock(), KnownFigures()
 
     def send(message) -> None:

@@ -11,6 +11,8 @@ import logging
 import math
 import time
 
+from spidermatch.solve.types import relative_gap
+
 logger = logging.getLogger(__name__)
 
 PROGRESS_INTERVAL = 5.0  # seconds between two progress lines
@@ -23,9 +25,10 @@ def format_value(value: float) -> str:
 
 def format_gap(incumbent: float, bound: float) -> str:
     """The relative gap (incumbent - bound) / |incumbent| in percent, or "n/a"."""
-    if not (math.isfinite(incumbent) and math.isfinite(bound)) or max(abs(incumbent), abs(bound)) >= 1e30:
+    if max(abs(incumbent), abs(bound)) >= 1e30:  # HiGHS's "none"
         return "n/a"
-    return f"{100.0 * max(incumbent - bound, 0.0) / max(abs(incumbent), 1e-300):.2f} %"
+    gap = relative_gap(incumbent, bound)
+    return f"{100.0 * gap:.2f} %" if math.isfinite(gap) else "n/a"
 
 
 class ProgressLog:

@@ -23,8 +23,9 @@ import numpy as np
 from spidermatch.model.ilp import IlpModel, restrict_columns
 from spidermatch.model.product_graph import ProductGraph
 from spidermatch.solve.connectivity import is_closed_path
-from spidermatch.solve.highs import HighsSession, SolverOptions
+from spidermatch.solve.highs import HighsSession
 from spidermatch.solve.layer_flow import SessionFlows
+from spidermatch.solve.types import SolverOptions
 
 logger = logging.getLogger(__name__)
 
@@ -82,7 +83,7 @@ def repair_detached(
     affected_layers : iterable of int
         Layers whose columns are freed, with the layers around them (:func:`freed_layers`;
         first ``REPAIR_WINDOWS[0]`` on each side, then, if that has no closed path, the next).
-    pool : spidermatch.solve.strategies.CutPool
+    pool : spidermatch.solve.cuts.CutPool
         Its connectivity cuts and flow layers go into the repair MIP; its ``first_layer``
         ties layers of one source vertex.
     options : SolverOptions
