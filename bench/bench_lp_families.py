@@ -32,7 +32,9 @@ def prepare_pair(data: str, pair: str, faces: int, features: str, checkpoint: st
     from spidermatch.pipeline import MatchSettings, prepare
 
     x, y, feat_x, feat_y = load_pair_with_features(data, tuple(pair.split(":")), features, checkpoint)
-    _, _, curve, graph, model = prepare(x.mesh, y.mesh, feat_x, feat_y, MatchSettings(resolution=faces), {})
+    _, _, curve, graph, model = prepare(
+        x.mesh, y.mesh, feat_x, feat_y, MatchSettings(resolution=faces, strategy="rcfix"), {}
+    )
     return curve, graph, model
 
 

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from spidermatch import defaults
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
 from spidermatch.feature_transfer import pair_features as capped_pair_features
 from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
@@ -31,13 +32,13 @@ from spidermatch.validate import check_settings, feature_cap_problem, raise_prob
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_TIME_LIMIT = 300.0
+DEFAULT_TIME_LIMIT = float(defaults.option("solver/default", "time_limit"))
 """Seconds a default match may spend in the solver; when it stops, the incumbent and its gap are returned."""
 
-WKS_RESOLUTION = 500
-"""Default faces with WKS features (FAUST_r pairs certify in seconds to about two minutes there)."""
+WKS_RESOLUTION = defaults.resolution("files", "wks")
+"""Default faces with WKS features (smaller: WKS makes the ILP harder)."""
 
-LEARNED_RESOLUTION = 1000
+LEARNED_RESOLUTION = defaults.resolution("files", "learned")
 """Default faces with learned (or any other) features."""
 
 BETTER_FEATURES_HINT = (

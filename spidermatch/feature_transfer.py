@@ -17,13 +17,14 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
+from spidermatch import defaults
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.remesh import decimate
 from spidermatch.model.costs import unit_rows
 
 logger = logging.getLogger(__name__)
 
-MAX_FEATURE_VERTICES = 20_000
+MAX_FEATURE_VERTICES = int(defaults.match_option("features_max_vertices"))
 """Default cap: larger meshes get their features on a decimated copy (``None``/0: no cap)."""
 
 CARRY_NEIGHBOURS = 4

@@ -16,6 +16,7 @@ from functools import partial
 
 import numpy as np
 
+from spidermatch import defaults
 from spidermatch.dense.densify import DenseMap, DenseSettings, densify
 from spidermatch.eval.quality import assess
 from spidermatch.geometry.mesh import Mesh
@@ -38,7 +39,7 @@ from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import ProductGraph, build_product_graph
 from spidermatch.model_size import check_model_fits
 from spidermatch.solve.isolate import solve_isolated
-from spidermatch.solve.strategies import LAZY_STRATEGIES, solve_with_strategy
+from spidermatch.solve.strategies import LAZY_STRATEGIES, solve_with_strategy, strategy_for
 from spidermatch.solve.types import SolveResult, SolverOptions
 from spidermatch.validate import check_settings
 
@@ -72,6 +73,18 @@ class SolverFailure(MatchError):
     exit_code = 5
 
 
+def default_solver_options() -> SolverOptions:
+    """The solver options of ``conf/solver/default.yaml`` (HiGHS's own defaults are for no time limit)."""
+    solver = defaults.group("solver/default")
+    return SolverOptions(
+        time_limit=float(solver["time_limit"]),
+        mip_rel_gap=float(solver["mip_rel_gap"]),
+        threads=int(solver["threads"]),
+        presolve=str(solver["presolve"]),
+        log=bool(solver["log"]),
+    )
+
+
 @dataclass(frozen=True)
 class MatchSettings:
     """Everything that decides a match, as plain values.
@@ -92,7 +105,9 @@ class MatchSettings:
         Constraint families to impose (all four by default).
     solver : SolverOptions
     strategy : str
-        Solving strategy name (see :mod:`spidermatch.solve.strategies`).
+        Solving strategy name (see :mod:`spidermatch.solve.strategies`), or "auto": the
+        strategy for learned features (:func:`~spidermatch.solve.strategies.strategy_for`;
+        :func:`spidermatch.match` and the command line pass the features' name).
     isolate_solver : bool
         Solve in a child process (:mod:`spidermatch.solve.isolate`): if HiGHS crashes, the
         result has status "error" with the incumbent objective and bound known before.
@@ -105,17 +120,17 @@ class MatchSettings:
 
     """
 
-    resolution: int = 1000
-    decimation: str = "shortest_edge"
-    curve_augmented: bool = False
-    target_augmented: bool = False
-    curve_seed: int = 0
-    curve_matching: str = "greedy"
+    resolution: int = defaults.resolution("files", "learned")
+    decimation: str = defaults.option("curve/default", "decimation")
+    curve_augmented: bool = bool(defaults.option("curve/default", "augmented"))
+    target_augmented: bool = bool(defaults.option("costs/default", "target_augmented"))
+    curve_seed: int = int(defaults.option("curve/default", "seed"))
+    curve_matching: str = defaults.option("curve/default", "matching")
     loss: RobustLoss = field(default_factory=RobustLoss)
-    constraints: tuple = FAMILIES
-    solver: SolverOptions = field(default_factory=SolverOptions)
-    strategy: str = "rcfix"
-    isolate_solver: bool = True
+    constraints: tuple = tuple(defaults.option("costs/default", "constraints"))
+    solver: SolverOptions = field(default_factory=lambda: default_solver_options())
+    strategy: str = defaults.option("solver/default", "strategy")
+    isolate_solver: bool = bool(defaults.option("solver/default", "isolate"))
     dense: DenseSettings | None = field(default_factory=DenseSettings)
     partial: bool = False
 
@@ -225,6 +240,11 @@ def low_resolution_features(features: np.ndarray, to_full: np.ndarray) -> np.nda
     return unit_rows(np.asarray(features)[to_full])
 
 
+def strategy_resolved(settings: MatchSettings) -> MatchSettings:
+    """``settings`` with ``strategy="auto"`` replaced by a strategy: the one for features other than WKS."""
+    return dataclasses.replace(settings, strategy=strategy_for(settings.strategy, "precomputed"))
+
+
 def prepare(
     source: Mesh,
     target: Mesh,
@@ -238,6 +258,7 @@ def prepare(
     For a strategy in ``LAZY_STRATEGIES`` the ILP is a :class:`LazyModel` (feature costs only;
     columns are built by the strategy); otherwise the full :class:`IlpModel`.
     """
+    settings = strategy_resolved(settings)
     _check_features(source, source_features, "source")
     _check_features(target, target_features, "target")
     check_model_fits(
@@ -338,7 +359,7 @@ def match(
         infeasible, unsolved or unchecked result into an exception.
 
     """
-    settings = settings or MatchSettings()
+    settings = strategy_resolved(settings or MatchSettings())
     check_settings(settings)
     timings: dict = {}
     low_x, low_y, curve, graph, model = prepare(

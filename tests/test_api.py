@@ -1,3 +1,4 @@
+import dataclasses
 import re
 import shutil
 import subprocess
@@ -134,6 +135,34 @@ def test_defaults_agree_with_the_command_line_config():
     assert composed().resolution == api.default_resolution("wks") == api.WKS_RESOLUTION
     assert composed("features=learned").resolution == api.default_resolution("learned")
     assert composed().solver.time_limit == api.DEFAULT_TIME_LIMIT
+    assert composed().features_max_vertices == api.MAX_FEATURE_VERTICES
+
+
+def test_match_settings_defaults_are_the_command_line_defaults():
+    """One source of defaults: MatchSettings() is what spidermatch-match runs with learned features."""
+    from hydra import compose, initialize_config_module
+
+    from spidermatch.pipeline import MatchSettings
+
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        cfg = compose(
+            config_name="match", overrides=["source=a.off", "target=b.off", "data=files", "features=learned"]
+        )
+    settings = MatchSettings()
+    solver = dataclasses.asdict(settings.solver)
+    assert {key: solver[key] for key in ("time_limit", "mip_rel_gap", "threads", "presolve", "log")} == {
+        key: cfg.solver[key] for key in ("time_limit", "mip_rel_gap", "threads", "presolve", "log")
+    }
+    assert (settings.strategy, settings.isolate_solver) == (cfg.solver.strategy, cfg.solver.isolate)
+    assert settings.resolution == cfg.resolution
+    assert dataclasses.asdict(settings.dense) == {k: v for k, v in cfg.dense.items() if k != "enabled"}
+    assert dataclasses.asdict(settings.loss) == {k: cfg.costs[k] for k in ("alpha", "scale", "bowl_exponent")}
+    assert (settings.target_augmented, list(settings.constraints)) == (
+        cfg.costs.target_augmented,
+        list(cfg.costs.constraints),
+    )
+    curve = (settings.curve_augmented, settings.curve_seed, settings.decimation, settings.curve_matching)
+    assert curve == (cfg.curve.augmented, cfg.curve.seed, cfg.curve.decimation, cfg.curve.matching)
 
 
 def test_import_spidermatch_loads_neither_torch_nor_features():
@@ -177,7 +206,8 @@ def test_settings_defaults_and_precedence():
     assert (wks.resolution, wks.solver.time_limit) == (api.WKS_RESOLUTION, api.DEFAULT_TIME_LIMIT)
     assert api._settings(None, "learned", None, None, None, None).resolution == api.LEARNED_RESOLUTION
     given = api._settings(MatchSettings(resolution=77), "wks", None, None, None, "plain")
-    assert (given.resolution, given.strategy, given.solver.time_limit) == (77, "plain", float("inf"))
+    assert (given.resolution, given.strategy) == (77, "plain")
+    assert given.solver.time_limit == api.DEFAULT_TIME_LIMIT
     assert wks.strategy == "rcfix"  # "auto": WKS's weak LP keeps rcfix
     assert api._settings(None, "learned", None, None, None, None).strategy == "colgen"
     assert api._settings(None, "learned", None, None, None, "auto").strategy == "colgen"

@@ -1,7 +1,7 @@
 """Differential tests too slow for the default run: ``pytest -m slow``.
 
-Larger instances than the brute-force tests of ``test_ilp.py``: the default strategy
-(rcfix) and plain HiGHS must agree on the optimum, each bound must stay below the other's
+Larger instances than the brute-force tests of ``test_ilp.py``: the strategy ``auto`` picks
+for WKS (rcfix) and plain HiGHS must agree on the optimum, each bound must stay below the other's
 objective, and the solution must pass the independent checker, with real WKS costs.
 """
 

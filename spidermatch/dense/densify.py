@@ -59,6 +59,7 @@ from dataclasses import asdict, dataclass, fields, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
+from spidermatch import defaults
 from spidermatch.dense.registration import arap_system, fit
 from spidermatch.dense.unfold import unfolded_vertices
 from spidermatch.geometry.coarse import coarse_labels, faces_by_label, project_onto_coarse, ring_faces
@@ -108,6 +109,9 @@ ROTATION_ROUNDS = 5
 METHODS = ("deformation", "interp", "interp_features", "zoomout", "zoomout_local", "zoomout_accept")
 
 
+_DEFAULTS = defaults.group("dense/default")
+
+
 @dataclass(frozen=True)
 class DenseSettings:
     """Parameters of the densification.
@@ -144,19 +148,19 @@ class DenseSettings:
 
     """
 
-    method: str = "deformation"
-    radius: float = 2.0
-    distance_weight: float = 0.0
-    n_neighbours: int = 256
-    spectral_start: int = 20
-    spectral_stop: int = 100
-    spectral_step: int = 5
-    spectral_feature_weight: float = 0.0
-    smoothing: int = 3
-    fit_weight: float = 0.1
-    deformation_rounds: int = 6
-    inverse: bool = False
-    unfold: bool = True
+    method: str = _DEFAULTS["method"]
+    radius: float = float(_DEFAULTS["radius"])
+    distance_weight: float = float(_DEFAULTS["distance_weight"])
+    n_neighbours: int = int(_DEFAULTS["n_neighbours"])
+    spectral_start: int = int(_DEFAULTS["spectral_start"])
+    spectral_stop: int = int(_DEFAULTS["spectral_stop"])
+    spectral_step: int = int(_DEFAULTS["spectral_step"])
+    spectral_feature_weight: float = float(_DEFAULTS["spectral_feature_weight"])
+    smoothing: int = int(_DEFAULTS["smoothing"])
+    fit_weight: float = float(_DEFAULTS["fit_weight"])
+    deformation_rounds: int = int(_DEFAULTS["deformation_rounds"])
+    inverse: bool = bool(_DEFAULTS["inverse"])
+    unfold: bool = bool(_DEFAULTS["unfold"])
 
     def __post_init__(self) -> None:
         problems = settings_problems(asdict(self))

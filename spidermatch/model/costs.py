@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spidermatch import defaults
 from spidermatch.model.product_graph import ProductGraph
 
 logger = logging.getLogger(__name__)
@@ -32,9 +33,9 @@ class RobustLoss:
 
     """
 
-    alpha: float = 2.0
-    scale: float = 0.3
-    bowl_exponent: float = 4.0
+    alpha: float = float(defaults.option("costs/default", "alpha"))
+    scale: float = float(defaults.option("costs/default", "scale"))
+    bowl_exponent: float = float(defaults.option("costs/default", "bowl_exponent"))
 
     def __post_init__(self) -> None:
         if self.scale <= 0 or self.bowl_exponent <= 0:
