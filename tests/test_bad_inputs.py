@@ -20,7 +20,8 @@ from hydra import compose, initialize_config_module
 
 import spidermatch
 from spidermatch import shutdown
-from spidermatch.cli.main import run_eval, run_match
+from spidermatch.cli.evaluate import run_eval
+from spidermatch.cli.match import run_match
 from spidermatch.data.datasets import SyntheticShapes, write_dataset
 from spidermatch.geometry.io import load_mesh, read_vts, save_mesh
 from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
@@ -213,12 +214,12 @@ def test_bad_later_stage_options_are_refused_before_the_solve(tmp_path, override
 
 @pytest.mark.parametrize("failure", [MemoryError(), TypeError("a bug")])
 def test_a_failing_dense_stage_keeps_matches_and_records_the_stage(tmp_path, monkeypatch, failure):
-    import spidermatch.cli.main
+    import spidermatch.cli.match
 
     def fail(*args, **kwargs):
         raise failure
 
-    monkeypatch.setattr(spidermatch.cli.main, "add_dense_map", fail)
+    monkeypatch.setattr(spidermatch.cli.match, "add_dense_map", fail)
     folder = tmp_path / "run"
     code = run_match(config("match", SMALL), folder)
     result = result_of(folder)
@@ -644,7 +645,7 @@ class FakeLoadavg:
 
 
 def test_pytorch_gets_only_the_free_cores(monkeypatch):
-    from spidermatch.cli import main as cli
+    from spidermatch.cli import inputs as cli
 
     class FakeTorch:
         threads = 2

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_module
 
-from spidermatch.cli.main import run_match
+from spidermatch.cli.match import run_match
 from spidermatch.data.datasets import SyntheticShapes, write_dataset
 
 # a generous time limit: on a loaded machine the 300 s default can stop a small solve

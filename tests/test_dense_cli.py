@@ -6,7 +6,7 @@ import pytest
 from hydra import compose, initialize_config_module
 
 from spidermatch.cli.batch import SUMMARY_COLUMNS, summarise, summary_row
-from spidermatch.cli.main import run_match
+from spidermatch.cli.match import run_match
 from spidermatch.report.dense_report import read_dense_map
 
 SMALL = ["data.n_verts=700", "resolution=60", "output.png=false"]

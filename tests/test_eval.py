@@ -9,7 +9,7 @@ from hydra import compose, initialize_config_module
 
 from spidermatch.cli.batch import select_pairs
 from spidermatch.cli.collect import main as collect_main
-from spidermatch.cli.main import run_eval
+from spidermatch.cli.evaluate import run_eval
 from spidermatch.data.datasets import SyntheticShapes, write_dataset
 
 SMALL = ["resolution=60", "synthetic.n_verts=700"]

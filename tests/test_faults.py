@@ -18,7 +18,8 @@ import trimesh
 from hydra import compose, initialize_config_module
 
 from spidermatch import shutdown
-from spidermatch.cli.main import run_eval, run_match
+from spidermatch.cli.evaluate import run_eval
+from spidermatch.cli.match import run_match
 from spidermatch.cli.resume import file_identity, rerun_reason
 from spidermatch.data.datasets import SyntheticShapes, write_dataset
 from spidermatch.geometry.io import load_mesh, read_vts, save_mesh
@@ -156,7 +157,7 @@ def test_02_every_strategy_and_curve_matching_is_accepted_and_unknown_ones_named
 
 
 def test_02_strategy_auto_is_colgen_for_learned_features_and_rcfix_for_wks():
-    from spidermatch.cli.main import settings_from_config
+    from spidermatch.cli.settings import settings_from_config
 
     cfg = config("match", [])
     assert cfg.solver.strategy == "auto"

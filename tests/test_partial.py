@@ -9,7 +9,7 @@ import trimesh
 from hydra import compose, initialize_config_module
 
 import spidermatch
-from spidermatch.cli.main import run_match
+from spidermatch.cli.match import run_match
 from spidermatch.data.synthetic import make_creature
 from spidermatch.geometry.descriptors import WKSExtractor
 from spidermatch.geometry.io import load_mesh, save_mesh

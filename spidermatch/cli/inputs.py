@@ -1,0 +1,221 @@
+"""What a match run reads.
+
+The meshes and ground truth a configuration names, the kind of pair they make and their features.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spidermatch.api import BETTER_FEATURES_HINT
+from spidermatch.cli.settings import dense_settings
+from spidermatch.data.datasets import DatasetError, SyntheticShapes
+from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, pair_features
+from spidermatch.geometry.io import load_mesh, read_vts
+from spidermatch.geometry.mesh import Mesh, MeshError
+from spidermatch.geometry.partial import PairKind, announce_pair, pair_kind
+from spidermatch.model_size import check_meshes_fit
+from spidermatch.validate import (
+    OptionError,
+    check_ground_truth,
+    coarseness_warnings,
+)
+
+logger = logging.getLogger("spidermatch.match")
+
+
+INPUT_ERRORS = (MeshError, DatasetError, ValueError, FileNotFoundError)
+
+
+@dataclass(frozen=True)
+class MatchInputs:
+    """Two full-resolution meshes, their names and optional ground truth (K,) each."""
+
+    source: Mesh
+    target: Mesh
+    source_corr: np.ndarray | None
+    target_corr: np.ndarray | None
+    resolution: int
+    description: str
+    partial: bool = False
+
+
+def load_inputs(cfg) -> MatchInputs:
+    """Meshes named by ``source=``/``target=``, or the built-in synthetic pair."""
+    if (cfg.source is None) != (cfg.target is None):
+        raise DatasetError("give both source=PATH and target=PATH (or neither, for the built-in demo)")
+    if cfg.source is not None:
+        source, target = load_mesh(cfg.source), load_mesh(cfg.target)
+        source_corr = read_vts(cfg.source_corr, source.n_verts) if cfg.source_corr else None
+        target_corr = read_vts(cfg.target_corr, target.n_verts) if cfg.target_corr else None
+        if (source_corr is None) != (target_corr is None):
+            raise DatasetError("give both source_corr= and target_corr= to evaluate against ground truth")
+        check_ground_truth(source_corr, target_corr, cfg.source_corr, cfg.target_corr)
+        return MatchInputs(
+            source, target, source_corr, target_corr, int(cfg.resolution), f"{cfg.source} -> {cfg.target}"
+        )
+    data = cfg.data
+    shapes = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.source_seed)
+    other = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.target_seed)
+    x, y = shapes.load(shapes.names[0]), other.load(other.names[0])
+    return MatchInputs(
+        x.mesh, y.mesh, x.corr, y.corr, int(cfg.resolution), f"built-in synthetic pair {x.name} -> {y.name}"
+    )
+
+
+def check_inputs(cfg, inputs: MatchInputs, report: dict) -> MatchInputs:
+    """Pair checks before any work: topology, meshes far below the resolution, memory for their size.
+
+    What was repaired on reading the meshes (re-oriented faces, split polygons) joins the
+    report's warnings. Returns ``inputs``, marked ``partial`` when the source is a part of
+    the target (``report["pair"]`` says how the pair is matched and why).
+    """
+    repairs = [*inputs.source.notes, *inputs.target.notes]
+    if repairs:
+        report.setdefault("warnings", []).extend(repairs)
+    kind = checked_pair_kind(cfg, inputs, report)
+    report["pair"] = {"mode": kind.mode, "reason": kind.reason, "area_ratio": round(kind.area_ratio, 4)}
+    announce_pair(kind)
+    if kind.caution:
+        report.setdefault("warnings", []).append(kind.caution)
+    warnings = coarseness_warnings((inputs.source, inputs.target), inputs.resolution)
+    if warnings:
+        report.setdefault("warnings", []).extend(warnings)
+    check_meshes_fit((inputs.source.n_verts, inputs.target.n_verts), dense_settings(cfg) is not None)
+    return dataclasses.replace(inputs, partial=kind.mode == "partial")
+
+
+PARTIAL_OPTIONS = ("auto", "off")
+
+
+def checked_pair_kind(cfg, inputs: MatchInputs, report: dict) -> PairKind:
+    """How the pair is matched (``partial=auto|off``); a refused pair raises, unless forced.
+
+    ``allow_topology_mismatch=true`` matches a refused pair as two whole shapes, with the
+    refusal as a warning.
+    """
+    option = cfg.get("partial", "auto")
+    if option not in PARTIAL_OPTIONS:
+        raise OptionError(f"partial={option!r}: choose from {', '.join(PARTIAL_OPTIONS)}")
+    try:
+        return pair_kind(inputs.source, inputs.target, partial=option == "auto")
+    except MeshError as error:
+        if not cfg.get("allow_topology_mismatch", False):
+            raise
+        logger.warning("%s (allow_topology_mismatch=true: matching anyway)", error)
+        report.setdefault("warnings", []).append(str(error))
+        ratio = inputs.source.area / inputs.target.area
+        return PairKind("whole", "allow_topology_mismatch=true: matched as two whole shapes", ratio)
+
+
+def resolution_text(inputs: MatchInputs) -> str:
+    """'500 faces', or what each mesh is matched at when one has fewer faces than the resolution."""
+    faces = [min(inputs.resolution, mesh.n_faces) for mesh in (inputs.source, inputs.target)]
+    if faces == [inputs.resolution] * 2:
+        return f"{inputs.resolution} faces"
+    return (
+        f"{faces[0]} x {faces[1]} faces (resolution={inputs.resolution}; a coarser mesh is matched as it is)"
+    )
+
+
+def make_extractor(cfg):
+    """Instantiate ``cfg.features``; a learned extractor without a checkpoint is a clear error."""
+    from hydra.utils import instantiate
+
+    if "checkpoint" in cfg.features and cfg.features.checkpoint is None:
+        raise ValueError(
+            "features=learned needs a trained network: give checkpoint=PATH (see spidermatch-train)"
+        )
+    from hydra.errors import InstantiationException
+
+    try:
+        extractor = instantiate(cfg.features)
+    except InstantiationException as error:
+        # Hydra wraps the extractor's own error; a bad checkpoint is the user's input problem.
+        if isinstance(error.__cause__, (ValueError, OSError)):
+            raise error.__cause__ from None
+        raise
+    if "torch" in sys.modules:
+        use_free_cores(sys.modules["torch"])
+    return extractor
+
+
+def free_cores() -> int:
+    """Cores this process may use that other processes keep free, at least 1.
+
+    Busy cores: the larger of the 1-minute load average and the processes running right now
+    besides this one (``/proc/loadavg``; two matches started together see each other only there).
+    """
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    busy = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
+    try:
+        running = int(Path("/proc/loadavg").read_text().split()[3].split("/")[0])
+        busy = max(busy, running - 1)
+    except (OSError, ValueError, IndexError):
+        pass
+    return max(1, min(cores, round(cores - busy)))
+
+
+def use_free_cores(torch) -> None:
+    """Give PyTorch only the free cores, unless ``OMP_NUM_THREADS`` says how many.
+
+    PyTorch takes every core by default; two matches at once on two cores then run four
+    spinning threads. Measured with the TOSCA label-free network and 20 adaptation steps on
+    cat0 -> cat1: alone 9.6 s (2 threads) or 11.1 s (1); two at once 32 s each with 2
+    threads, 12 s each with 1.
+    """
+    if os.environ.get("OMP_NUM_THREADS"):
+        return
+    default = torch.get_num_threads()
+    threads = min(free_cores(), default)
+    if threads < default:
+        logger.info(
+            "PyTorch uses %d of %d threads: other processes keep the other cores busy", threads, default
+        )
+        torch.set_num_threads(threads)
+
+
+def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, str, dict]:
+    """Features of both full-resolution (centred) meshes, the extractor's name, and how they were made.
+
+    The last item (for ``result.json``) names the meshes whose features were computed on a
+    capped copy (``computed_on_vertices``) and how an orientation search presented each mesh.
+    """
+    extractor = make_extractor(cfg)
+    name = getattr(extractor, "name", type(extractor).__name__)
+    if name == "wks":
+        logger.info("features: WKS (no trained checkpoint given). %s", BETTER_FEATURES_HINT)
+    capped = {}
+    feat_x, feat_y = pair_features(
+        extractor, inputs.source, inputs.target, feature_cap(cfg), capped, inputs.partial
+    )
+    return feat_x, feat_y, name, feature_details(extractor, capped)
+
+
+def feature_details(extractor, capped: dict) -> dict:
+    """``computed_on_vertices`` and ``orientation`` of a features stage (empty ones left out).
+
+    Logs the orientations and forgets them, so that the next pair reports its own.
+    """
+    details = {"computed_on_vertices": dict(capped)} if capped else {}
+    orientations = getattr(extractor, "orientations", None)
+    if orientations:
+        details["orientation"] = {key: value.describe() for key, value in orientations.items()}
+        logger.info(
+            "orientation search: %s",
+            "; ".join(f"{key} {text}" for key, text in details["orientation"].items()),
+        )
+        orientations.clear()
+    return details
+
+
+def feature_cap(cfg) -> int | None:
+    """``features_max_vertices`` of the run (None: no cap)."""
+    return cfg.get("features_max_vertices", MAX_FEATURE_VERTICES) or None
