@@ -123,19 +123,19 @@ def test_colgen_needs_a_lazy_model():
 
 
 def test_a_slice_of_one_pricing_pass_equals_pricing_at_the_lower_threshold(rng):
-    from spidermatch.solve.colgen import within
+    from spidermatch.solve.colgen import up_to
 
     lazy = creature_lazy(24, 3)
     model = lazy.full_model()
     y = sign_corrected_duals(model, rng.normal(0.0, 0.01, model.n_rows))
     wide = price(lazy, y, threshold=0.05)
     for threshold in (-0.01, 0.0, 0.01, 0.05):
-        direct, sliced = price(lazy, y, threshold), within(wide, threshold)
+        direct, sliced = price(lazy, y, threshold), up_to(wide, threshold)
         np.testing.assert_array_equal(sliced.columns, direct.columns)
         assert sliced.min_outside == pytest.approx(direct.min_outside, rel=1e-12)
         assert sliced.bound == pytest.approx(direct.bound, rel=1e-12)
     with pytest.raises(ValueError, match="cutoff"):
-        within(wide, 0.1)
+        up_to(wide, 0.1)
 
 
 @pytest.mark.parametrize("seed, route", [(0, "LP solution integral"), (1, "Optimal")])
@@ -256,9 +256,9 @@ def test_next_threshold_jumps_to_the_incumbent_gap_when_near_and_grows_fourfold_
 
 
 def test_useless_beyond_stops_only_a_mip_that_cannot_certify_and_has_nothing_more_to_give():
-    from spidermatch.solve.colgen import useless_beyond
+    from spidermatch.solve.colgen import futile_mip_stop
 
-    stop_when = useless_beyond(outside=10.0, near=11.0, rel_gap=0.0)
+    stop_when = futile_mip_stop(outside=10.0, near=11.0, rel_gap=0.0)
     assert not stop_when(100.0, 9.9)  # may still certify
     assert not stop_when(100.0, 10.5)  # cannot certify, but a better incumbent would let the next step jump
     assert stop_when(10.8, 10.5)  # cannot certify and its incumbent is near: the next step jumps to U - L

@@ -125,7 +125,7 @@ def test_a_detached_cycle_puts_its_layer_and_the_layers_of_its_source_vertex_und
 
 
 def test_a_start_with_a_detached_cycle_is_not_offered_once_flow_rows_exist(caplog):
-    from spidermatch.solve.cuts import _offer
+    from spidermatch.solve.cuts import offer_start_path
     from spidermatch.solve.highs import HighsSession
     from spidermatch.solve.layer_flow import SessionFlows
 
@@ -135,7 +135,7 @@ def test_a_start_with_a_detached_cycle_is_not_offered_once_flow_rows_exist(caplo
     flows = SessionFlows(graph, np.arange(graph.n_edges), session)
     flows.cover(range(graph.n_layers))
     with caplog.at_level("WARNING"):
-        _offer(session, flows, detached)
+        offer_start_path(session, flows, detached)
     assert session.offered is None and "not offered" in caplog.text
-    _offer(session, flows, optimum)
+    offer_start_path(session, flows, optimum)
     assert session.offered is not None and session.offered[1].size == session.n_vars

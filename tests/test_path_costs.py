@@ -3,7 +3,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from spidermatch.solve.colgen import by_path, generate_columns, price, stay_seed
+from spidermatch.solve.colgen import generate_columns, price, stay_seed, with_path_reduced_costs
 from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.path_costs import path_reduced_costs
 from spidermatch.solve.plain import solve_plain
@@ -62,7 +62,7 @@ def test_path_reduced_costs_are_never_below_reduced_costs_and_often_above(rng):
 def test_a_pass_by_path_keeps_its_columns_bound_and_min_outside():
     lazy = creature_lazy(24, 3)
     priced = price(lazy, lp_duals(lazy), 0.3)
-    pathed = by_path(lazy, priced)
+    pathed = with_path_reduced_costs(lazy, priced)
     np.testing.assert_array_equal(pathed.columns, priced.columns)
     kept = (pathed.bound, pathed.cutoff, pathed.min_outside)
     assert kept == (priced.bound, priced.cutoff, priced.min_outside)
@@ -121,4 +121,4 @@ def test_by_path_leaves_a_model_without_closed_paths_alone():
     )
     y = np.zeros(no_con.n_rows)
     priced = price(no_con, y, 0.5)
-    assert by_path(no_con, priced) is priced
+    assert with_path_reduced_costs(no_con, priced) is priced

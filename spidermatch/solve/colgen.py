@@ -23,7 +23,7 @@ holds only what defines the columns and produces any of them on demand:
 3. **Growing MIPs.** With the final duals y and bound L = L(y) (if the LP solution is
    integral, one closed path and within the target gap of L, it is certified at once), the
    last round's pricing pass keeps the columns of reduced cost up to ``PRICED_SPAN |L|``
-   (:func:`within` slices it for each step) and replaces each reduced cost by the column's
+   (:func:`up_to` slices it for each step) and replaces each reduced cost by the column's
    *path reduced cost* R_j >= r_j (:mod:`spidermatch.solve.path_costs`: the least reduced
    cost of a whole closed path through j); a MIP at the target gap over the columns of
    path reduced cost at most a threshold t (plus the LP support, the stay seed and the
@@ -122,7 +122,7 @@ class Pricing:
     columns : np.ndarray, shape (k,)
         Sorted edge ids with reduced cost at most ``cutoff``.
     reduced : np.ndarray, shape (k,)
-        Their reduced costs, or after :func:`by_path` their path reduced costs: a solution
+        Their reduced costs, or after :func:`with_path_reduced_costs` their path reduced costs: a solution
         using column j costs at least ``bound + reduced[j]`` (if positive).
     cutoff : float
     min_outside : float
@@ -163,7 +163,7 @@ def price(lazy: LazyModel, y: np.ndarray, threshold: float) -> Pricing:
     return Pricing(bound, np.concatenate(kept_ids), np.concatenate(kept_reduced), threshold, min_outside)
 
 
-def by_path(lazy: LazyModel, priced: Pricing) -> Pricing:
+def with_path_reduced_costs(lazy: LazyModel, priced: Pricing) -> Pricing:
     """The same pass with path reduced costs (:mod:`spidermatch.solve.path_costs`) in place of ``reduced``.
 
     Every column of the pass keeps its id; ``min_outside`` stays valid, as a column outside has
@@ -428,7 +428,7 @@ def _lp_certified(
     )
 
 
-def within(priced: Pricing, threshold: float) -> Pricing:
+def up_to(priced: Pricing, threshold: float) -> Pricing:
     """The part of a pricing pass at most ``threshold`` (which must not exceed its cutoff).
 
     Columns between ``threshold`` and the pass's cutoff move outside: ``min_outside`` is the
@@ -454,7 +454,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     ``t`` grows (:func:`next_threshold`) to at most ``U - L``, and strictly: a MIP that does
     not certify has ``L + min_{j not in C} r_j < B_C <= U`` with every such ``r_j > t``.
     A MIP stops early once it cannot certify and has nothing more to give the next step
-    (:func:`useless_beyond`).
+    (:func:`futile_mip_stop`).
     The column sets are appended to ``built``.
     """
     incumbent = _lp_incumbent(lazy, lp)
@@ -469,11 +469,11 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     report_known(objective_of(lazy, incumbent), lp.bound, np.flatnonzero(incumbent > 0.5))
     base = np.union1d(lp.support(), stay)
     threshold, best = first_threshold(lp.bound, lazy.graph.n_layers), None
-    priced = by_path(lazy, lp.pricing)
+    priced = with_path_reduced_costs(lazy, lp.pricing)
     for step in range(1, MAX_STEPS + 1):
         if threshold > priced.cutoff:
-            priced = by_path(lazy, price(lazy, lp.y, threshold))
-        selection = within(priced, threshold)
+            priced = with_path_reduced_costs(lazy, price(lazy, lp.y, threshold))
+        selection = up_to(priced, threshold)
         columns = np.union1d(selection.columns, base)
         if incumbent is not None:
             columns = np.union1d(columns, np.flatnonzero(incumbent > 0.5))
@@ -482,7 +482,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
             return _stopped_before_mip(lazy, lp, incumbent, best, too_large)
         built.append(columns)
         outside = lp.bound + max(selection.min_outside, 0.0)
-        stop_when = useless_beyond(outside, lp.bound + JUMP * threshold, options.mip_rel_gap)
+        stop_when = futile_mip_stop(outside, lp.bound + JUMP * threshold, options.mip_rel_gap)
         try:
             result = _restricted_mip(
                 lazy, columns, remaining(options, start), incumbent, pool, layers, stop_when
@@ -589,7 +589,7 @@ def first_threshold(bound: float, n_layers: int) -> float:
     return FIRST_STEP * abs(bound) * min(FIRST_STEP_MAX_SCALE, max(1.0, n_layers / FIRST_STEP_LAYERS))
 
 
-def useless_beyond(outside: float, near: float, rel_gap: float):
+def futile_mip_stop(outside: float, near: float, rel_gap: float):
     """When a restricted MIP can no longer help: ``stop_when(incumbent, dual_bound)``.
 
     Once its dual bound exceeds ``outside`` (the bound O on solutions using a column left out,

@@ -177,9 +177,9 @@ def solve_with_cuts(
     if pool.rows is not None:
         add_cuts(pool.rows, pool.lower, pool.upper)
     if pool.flow_layers:
-        _cover(flows, pool.flow_layers)
+        _add_flow_rows(flows, pool.flow_layers)
     if incumbent is not None:
-        _offer(session, flows, incumbent if columns is None else incumbent[columns])
+        offer_start_path(session, flows, incumbent if columns is None else incumbent[columns])
     result = session.run()
     rounds = 0
     # connectivity cuts are valid for closed paths, which only flow conservation (CON) makes
@@ -213,13 +213,13 @@ def solve_with_cuts(
             rows.shape[0],
         )
         add_cuts(rows, lower, upper)
-        _cover(flows, pool.flow_layers)
+        _add_flow_rows(flows, pool.flow_layers)
         rounds = round_number
         restart = _cheapest_start(graph, session, columns, n_vars, repaired)
         if restart is not None:
             restart_sub = restart if columns is None else restart[columns]
             logger.info("restarting from the best closed path known, %.6g", sub.costs @ restart_sub)
-            _offer(session, flows, restart_sub)
+            offer_start_path(session, flows, restart_sub)
         result = session.run()  # the session gives each run only the time left
     x = expand(result.x, columns, n_vars)
     return replace(result, x=x, wall_time=time.perf_counter() - start, cut_rounds=rounds)
@@ -263,7 +263,7 @@ def _cheapest_start(graph, session, columns, n_vars, repaired) -> np.ndarray | N
     return min(candidates, key=lambda x: float(cost @ (x if columns is None else x[columns])))
 
 
-def _cover(flows: SessionFlows, layers) -> None:
+def _add_flow_rows(flows: SessionFlows, layers) -> None:
     added = flows.cover(layers)
     if added:
         logger.info(
@@ -273,7 +273,7 @@ def _cover(flows: SessionFlows, layers) -> None:
         )
 
 
-def _offer(session: HighsSession, flows: SessionFlows, x_sub: np.ndarray) -> None:
+def offer_start_path(session: HighsSession, flows: SessionFlows, x_sub: np.ndarray) -> None:
     """Offer a single closed path x_sub (k,) as the start, with its flow values.
 
     A vector that is not one closed walk has no flow values; it is not offered (HiGHS would
