@@ -6,22 +6,23 @@ from scipy.spatial import cKDTree
 from spidermatch.data.synthetic import creature_pair_ground_truth, make_creature
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.surface import occluded
-from spidermatch.report.plot import (
-    View,
+from spidermatch.report.colours import (
     checker_colours,
     greyed_uncovered,
     map_pairs,
     position_colours,
-    project,
+    spread_to_vertices,
+    transfer_colours,
+)
+from spidermatch.report.plot import (
     save_correspondence_png,
     save_curve_png,
     save_error_png,
     save_texture_png,
     short_label,
-    spread_to_vertices,
     title_lines,
-    transfer_colours,
 )
+from spidermatch.report.render import View, project
 
 
 @pytest.fixture(scope="module")

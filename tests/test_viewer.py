@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from spidermatch.data.synthetic import creature_pair_ground_truth, make_creature
-from spidermatch.report.plot import position_colours
+from spidermatch.report.colours import position_colours
 from spidermatch.report.viewer import ViewerMesh, save_match_viewer, save_viewer_html
 
 

@@ -96,7 +96,7 @@ def write_collected(root: Path, rows: list[dict]) -> Path:
 
 def save_collected_curves(root: Path, rows: list[dict]) -> Path | None:
     """All runs' cumulative error curves in ``root/curves.png``; None if no run has errors."""
-    from spidermatch.report.plot import save_error_curves
+    from spidermatch.report.curves import save_error_curves
 
     runs = {r["run"]: collect_errors(root / r["folder"]) for r in rows}
     runs = {label: errors for label, errors in runs.items() if errors.size}

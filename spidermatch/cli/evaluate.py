@@ -191,7 +191,7 @@ def _dataset_inputs(dataset, source: str, target: str, resolution: int) -> Match
 
 def _plot_run(run_dir: Path, label: str) -> None:
     from spidermatch.cli.batch import collect_errors
-    from spidermatch.report.plot import save_error_curves
+    from spidermatch.report.curves import save_error_curves
 
     errors = collect_errors(run_dir)
     if errors.size:

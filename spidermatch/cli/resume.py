@@ -11,13 +11,10 @@ from __future__ import annotations
 
 import hashlib
 import json
-import logging
 import os
 from pathlib import Path
 
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
-
-logger = logging.getLogger(__name__)
 
 # statuses that are the pair's real outcome (interrupted, output_error, started: run again)
 FINAL_STATUSES = ("optimal", "feasible", "infeasible", "no_solution", "solver_failure", "input_error")

@@ -2,15 +2,11 @@
 
 from __future__ import annotations
 
-import logging
-
 from spidermatch.dense.densify import DenseSettings
 from spidermatch.model.costs import RobustLoss
 from spidermatch.pipeline import MatchSettings
 from spidermatch.solve.strategies import strategy_for
 from spidermatch.solve.types import SolverOptions
-
-logger = logging.getLogger("spidermatch.match")
 
 
 def settings_from_config(cfg, resolution: int, feature_name: str) -> MatchSettings:

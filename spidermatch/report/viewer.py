@@ -20,16 +20,16 @@ from pathlib import Path
 import numpy as np
 
 from spidermatch.geometry.mesh import Mesh
-from spidermatch.report.plot import (
-    ERROR_UNITS,
+from spidermatch.report.colours import (
     checker_colours,
     error_colours,
     greyed_uncovered,
-    mesh_views,
     position_colours,
     spread_to_vertices,
     transfer_colours,
 )
+from spidermatch.report.plot import ERROR_UNITS
+from spidermatch.report.render import mesh_views
 
 logger = logging.getLogger(__name__)
 
@@ -98,7 +98,7 @@ def save_viewer_html(
     ----------
     panels : tuple of ViewerMesh
         Exactly two panels; the first decides the initial camera
-        (see :func:`spidermatch.report.plot.mesh_views`).
+        (see :func:`spidermatch.report.render.mesh_views`).
     path : str or PathLike
         HTML file to write.
     title, status : str
@@ -149,7 +149,7 @@ def save_match_viewer(
         Full-resolution meshes.
     matches : np.ndarray, shape (V_src,) or (N, 2)
         Dense ``src_to_tgt`` map or sparse (source, target) pairs (see
-        :func:`spidermatch.report.plot.transfer_colours`).
+        :func:`spidermatch.report.colours.transfer_colours`).
     path : str or PathLike
     title, status : str
     errors : tuple of np.ndarray, optional
