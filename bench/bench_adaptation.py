@@ -19,18 +19,16 @@ import time
 from pathlib import Path
 
 from feature_options import pair_problem
-from scipy.spatial import cKDTree
 
 from features.extractor import WKSExtractor
 from features.learned import LearnedExtractor
 from spidermatch.data.datasets import open_dataset
-from spidermatch.eval.errors import dense_map_errors
+from spidermatch.eval.errors import feature_map_errors
 
 
 def nn_error(feat_x, feat_y, x, y) -> float:
     """Mean geodesic error of the nearest-neighbour map from X to Y."""
-    nearest = cKDTree(feat_y).query(feat_x)[1]
-    return float(dense_map_errors(nearest, x.corr, y.corr, y.mesh).mean)
+    return float(feature_map_errors(feat_x, feat_y, x.corr, y.corr, y.mesh).mean)
 
 
 def pair_row(x, y, wks: WKSExtractor, learned: dict[int, LearnedExtractor]) -> dict:

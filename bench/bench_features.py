@@ -16,11 +16,10 @@ import time
 from pathlib import Path
 
 from feature_options import add_feature_options, parse_checked
-from scipy.spatial import cKDTree
 
 from features.extractor import extractor_by_name
 from spidermatch.data.datasets import open_dataset
-from spidermatch.eval.errors import dense_map_errors
+from spidermatch.eval.errors import feature_map_errors
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -41,8 +40,7 @@ def main(argv: list[str] | None = None) -> None:
         start = time.perf_counter()
         feat_x, feat_y = extractor(x.mesh.centred()), extractor(y.mesh.centred())
         seconds = (time.perf_counter() - start) / 2
-        nearest = cKDTree(feat_y).query(feat_x)[1]
-        error = dense_map_errors(nearest, x.corr, y.corr, y.mesh).mean
+        error = feature_map_errors(feat_x, feat_y, x.corr, y.corr, y.mesh).mean
         rows.append(
             {
                 "pair": text,

@@ -40,7 +40,10 @@ FULL_MODEL_COLUMNS_PER_FACE2 = 3.74  # |E_P| ~ 0.575 f * 6.5 f on FAUST_r meshes
 
 def run_instance(task: tuple) -> dict:
     """Match one pair at one resolution with one strategy; the row of figures."""
-    data, pair, faces, strategy, features, checkpoint, adapt_steps, time_limit, matching, log_dir = task
+    data, pair, faces, strategy, features, checkpoint, adapt_steps, time_limit, matching, log_dir, *rest = (
+        task
+    )
+    highs = rest[0] if rest else {}  # extra HiGHS options for every solve (bench_solve.py --highs)
     if log_dir:  # the solver's INFO log of this instance, one file per instance
         import logging
 
@@ -58,7 +61,7 @@ def run_instance(task: tuple) -> dict:
         resolution=faces,
         strategy=strategy,
         curve_matching=matching,
-        solver=SolverOptions(time_limit=time_limit),
+        solver=SolverOptions(time_limit=time_limit, extra=highs),
     )
     try:
         result = match(x.mesh, y.mesh, feat_x, feat_y, settings)
@@ -71,6 +74,7 @@ def run_instance(task: tuple) -> dict:
     row = {
         "pair": f"{pair[0]}:{pair[1]}",
         "faces": faces,
+        "features": features,
         "strategy": strategy,
         "curve_matching": matching,
         "adapt_steps": adapt_steps,

@@ -1,18 +1,12 @@
 """The mirrored-match test of bench/bench_flip_errors.py on a left-right symmetric grid."""
 
-import sys
-from pathlib import Path
-
 import numpy as np
+from bench_flip_errors import mirrored_matches, turn_about_vertical
+from scipy.spatial.transform import Rotation
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-
-from bench_flip_errors import mirrored_matches, turn_about_vertical  # noqa: E402
-from scipy.spatial.transform import Rotation  # noqa: E402
-
-from spidermatch.data.synthetic import make_creature  # noqa: E402
-from spidermatch.geometry.mesh import Mesh  # noqa: E402
-from train.data import ValShape  # noqa: E402
+from spidermatch.data.synthetic import make_creature
+from spidermatch.geometry.mesh import Mesh
+from train.data import ValShape
 
 
 def _grid() -> Mesh:

@@ -2,13 +2,9 @@
 
 import argparse
 import sys
-from pathlib import Path
 
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-
-from feature_options import add_feature_options, pair_problem, parse_checked  # noqa: E402
+from feature_options import add_feature_options, pair_problem, parse_checked
 
 
 def test_known_synthetic_pair_passes():

@@ -1,11 +1,6 @@
 """The stress run's draw and checks (bench/bench_stress.py)."""
 
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-
-from bench_stress import KINDS, Collections, checked_row, draw_runs, summaries_of  # noqa: E402
+from bench_stress import KINDS, Collections, checked_row, draw_runs, summaries_of
 
 
 def collections(tmp_path):

@@ -115,6 +115,33 @@ def dense_map_errors(
     return MapEvaluation(errors)
 
 
+def nearest_feature_map(source_features: np.ndarray, target_features: np.ndarray) -> np.ndarray:
+    """Target vertex of nearest descriptor (Euclidean) for every source vertex, shape (V_src,).
+
+    The map the features alone give, without any solver: the usual yardstick of descriptors.
+
+    Parameters
+    ----------
+    source_features : np.ndarray, shape (V_src, D)
+    target_features : np.ndarray, shape (V_tgt, D)
+
+    """
+    from scipy.spatial import cKDTree
+
+    return np.asarray(cKDTree(target_features).query(source_features)[1], dtype=np.int64)
+
+
+def feature_map_errors(
+    source_features: np.ndarray,
+    target_features: np.ndarray,
+    src_corr: np.ndarray,
+    tgt_corr: np.ndarray,
+    target: Mesh,
+) -> MapEvaluation:
+    """Errors of :func:`nearest_feature_map` at the K shared reference points, as :func:`dense_map_errors`."""
+    return dense_map_errors(nearest_feature_map(source_features, target_features), src_corr, tgt_corr, target)
+
+
 def sparse_map_errors(
     src_vertices: np.ndarray,
     tgt_vertices: np.ndarray,
