@@ -137,6 +137,7 @@ class _State:
     wakeup: int | None = None  # read end of the pipe that Python's C-level handler writes to
     abandoned: bool = False  # a HiGHS solve was left running on its thread after a signal
     held: int = 0  # > 0 while final files are written (signals_held)
+    graceful: str | None = None  # inside graceful_stops: what the first signal asks for (logged)
     lock_handle = None  # the open lock file of folder_lock, closed in forked children
 
 
@@ -209,10 +210,12 @@ def native_call():
 
 
 def _handler(signum, frame) -> None:
+    if _STATE.graceful is not None and _STATE.signum is not None:
+        raise KeyboardInterrupt  # a second signal in graceful_stops: at once
     if _STATE.signum is None:
         _STATE.signum = signum
-        logger.warning("%s received: stopping", signal.Signals(signum).name)
-    if _STATE.native == 0:
+        logger.warning("%s received: %s", signal.Signals(signum).name, _STATE.graceful or "stopping")
+    if _STATE.native == 0 and _STATE.graceful is None:
         raise_if_stopped()
 
 
@@ -245,6 +248,28 @@ def signals_handled():
             signal.signal(sig, handler)
         os.close(read_end)
         os.close(write_end)
+
+
+@contextlib.contextmanager
+def graceful_stops(what_happens: str):
+    """Inside the block the first SIGINT/SIGTERM only asks to stop; a second one stops at once.
+
+    For loops that can end cleanly between steps (training): they poll :func:`stop_requested`
+    and read :func:`received_signal` before the block ends (it forgets the signal). The second
+    signal raises ``KeyboardInterrupt``, for a user who will not wait for the step to end.
+
+    Parameters
+    ----------
+    what_happens : str
+        Logged with the first signal's name, e.g. "stopping after this step".
+
+    """
+    with signals_handled():
+        previous, _STATE.graceful = _STATE.graceful, what_happens
+        try:
+            yield
+        finally:
+            _STATE.graceful = previous
 
 
 def fresh_in_child() -> None:

@@ -290,13 +290,16 @@ def test_08_signal_during_the_solve(tmp_path, signum):
     assert not (folder / "matches.csv").exists()
 
 
-def test_08_training_stops_on_sigterm():
-    from train.loop import stop_on_interrupt
-
-    with stop_on_interrupt() as stop:
+def test_08_training_stops_on_sigterm_and_at_once_on_a_second_signal():
+    """Training's loop: the first signal asks to stop after the step, a second one stops at once."""
+    with shutdown.graceful_stops("stopping after this step"):
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(0.05)
-        assert stop[0]
+        assert shutdown.stop_requested() and shutdown.received_signal() == signal.SIGTERM
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+    assert not shutdown.stop_requested()  # the block forgets the signal
 
 
 # 9. an unwritable run folder

@@ -17,14 +17,11 @@ Resuming restores all of it, so the next losses equal those of an uninterrupted 
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import logging
 import math
 import os
 import shutil
-import signal
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +38,7 @@ from features.orientation import (
     searches_orientation,
     turn_about_vertical,
 )
+from spidermatch import shutdown
 from spidermatch.data.datasets import DatasetError
 from train.config import TrainConfig, incompatibilities
 from train.data import (
@@ -336,34 +334,6 @@ def validate(
     return value
 
 
-@contextlib.contextmanager
-def stop_on_interrupt():
-    """Turn the first SIGINT (Ctrl-C) or SIGTERM into a request to stop after the current step.
-
-    Yields a one-element list whose item becomes the signal's number when a stop was
-    requested (0 until then); a second signal interrupts at once (``KeyboardInterrupt``).
-    """
-    requested = [0]
-    if threading.current_thread() is not threading.main_thread():
-        yield requested
-        return
-
-    def handler(signum, frame):
-        if requested[0]:
-            raise KeyboardInterrupt
-        requested[0] = int(signum)
-        name = signal.Signals(signum).name
-        logger.warning("%s: stopping after this step and saving last.pt (Ctrl-C again to abort)", name)
-
-    stops = (signal.SIGINT, signal.SIGTERM)  # SIGTERM: `timeout`, SLURM pre-emption
-    previous = {sig: signal.signal(sig, handler) for sig in stops}
-    try:
-        yield requested
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
-
-
 def run_training(
     config: TrainConfig,
     out_dir: str | os.PathLike,
@@ -412,8 +382,8 @@ def run_training(
         disable=not run.progress,
         dynamic_ncols=True,
     )
-    with bar, stop_on_interrupt() as stop:
-        while state.step < run.n_steps and not stop[0]:
+    with bar, shutdown.graceful_stops("stopping after this step and saving last.pt (Ctrl-C again to abort)"):
+        while state.step < run.n_steps and not shutdown.stop_requested():
             losses.append(train_step(state, shapes, config))
             if state.step % run.log_every == 0:
                 lr = state.optimiser.param_groups[0]["lr"]
@@ -428,12 +398,15 @@ def run_training(
             if out_of_time:
                 logger.warning("time limit of %s min reached at step %d", run.time_limit_min, state.step)
                 break
-    if stop[0]:
+        stop_signal = shutdown.received_signal() if shutdown.stop_requested() else 0
+    if stop_signal:
         save_checkpoint(out_dir / "last.pt", state, config)
         logger.warning("stopped at step %d; continue with resume=%s", state.step, out_dir / "last.pt")
     criterion = validation.criterion if validation is not None else "val_error"
     wks = validation.wks_error if validation is not None else math.nan
-    return TrainResult(state.step, losses, state.best_val, last_val, bool(stop[0]), criterion, stop[0], wks)
+    return TrainResult(
+        state.step, losses, state.best_val, last_val, bool(stop_signal), criterion, stop_signal, wks
+    )
 
 
 def orientation_reference(shape: TrainShape, config: TrainConfig) -> dict[str, Any] | None:
