@@ -148,9 +148,8 @@ def check_model_fits(
 BYTES_PER_INPUT_VERTEX = {"dense": 7 * 1024, "sparse": 2 * 1024}
 """Peak bytes per vertex of the two input meshes together, with and without the dense map: the
 meshes, their features (capped, then carried to every vertex), the decimation and, with the
-dense map, its search tables and consistency figures. Measured with ``bench/bench_user_copies.py``
-(process peaks of 1.4, 2.9 and 4.1 GB for pairs of 80 000, 200 000 and 320 000 vertices each;
-a pair of 1.28 M each ran out of a 16 GB address space in the dense outputs) and rounded up
+dense map, its search tables and consistency figures. Measured on large scans with
+``bench/bench_user_copies.py`` (measurements: bench/README.md, solver constants) and rounded up
 for the address space a process maps beyond what it touches."""
 
 

@@ -167,9 +167,8 @@ def use_free_cores(torch) -> None:
     """Give PyTorch only the free cores, unless ``OMP_NUM_THREADS`` says how many.
 
     PyTorch takes every core by default; two matches at once on two cores then run four
-    spinning threads. Measured with the TOSCA label-free network and 20 adaptation steps on
-    cat0 -> cat1: alone 9.6 s (2 threads) or 11.1 s (1); two at once 32 s each with 2
-    threads, 12 s each with 1.
+    spinning threads, and each takes far longer than with one thread apiece; a match alone
+    still gains from the free cores (measurements: bench/README.md, solver constants).
     """
     if os.environ.get("OMP_NUM_THREADS"):
         return

@@ -19,11 +19,10 @@ Collapse
 Not proven
     A time-limited run whose gap stays large: ``gap``.
 
-The thresholds were set on FAUST_r and TOSCA_animals pairs with ground truth
-(``bench/bench_quality.py``, ``bench/results/quality_verdict_calibration.json``): correct maps
-(mean error below 0.1) had ``mirror`` up to 0.22 and ``distinct`` from 0.56, the WKS mirror
-images on FAUST_r ``mirror`` from 0.37, collapsed ones ``distinct`` up to 0.32 with gaps
-above 0.78, while correct time-limited ones had gaps up to 0.09.
+The thresholds were calibrated on pairs with ground truth (``bench/bench_quality.py``,
+``bench/results/quality_verdict_calibration*``): each separates the correct maps (mean error
+below 0.1) from the wrong ones in its figure, mirror images in ``mirror``, collapsed maps in
+``distinct`` and ``gap`` (measurements: bench/README.md, solver constants).
 """
 
 from __future__ import annotations

@@ -9,8 +9,8 @@ holds only what defines the columns and produces any of them on demand:
 
 1. **Seed.** Per curve position the edges among the ``SEED_NEIGHBOURS`` targets of
    lowest feature cost and their 1-ring, and a band around a cheap closed path
-   (:mod:`spidermatch.solve.path_seed`: without it, column generation needed up to 25
-   rounds where the features alone miss the optimal path), plus the *stay seed*: the stay edges at one
+   (:mod:`spidermatch.solve.path_seed`: without it, column generation needs many rounds
+   wherever the features alone miss the optimal path), plus the *stay seed*: the stay edges at one
    target vertex y0 in every layer. Alone, the stay seed is a solution of every
    constraint family (one boundary crossing per layer, a closed flow, equal out-flows
    in every layer, no counted edge for ANS) and of every connectivity cut (it has no
@@ -19,7 +19,7 @@ holds only what defines the columns and produces any of them on demand:
    far, the rows they touch); price *every* column of the full model with the LP's row duals,
    one block of layers at a time (:meth:`LazyModel.block_reduced_costs`); add the
    most negative ones; repeat until no column outside has a negative reduced cost or
-   the Lagrangian bound below meets the restricted LP's value.
+   the Lagrangian bound L(y) meets the restricted LP's value.
 3. **Growing MIPs.** With the final duals y and bound L = L(y) (if the LP solution is
    integral, one closed path and within the target gap of L, it is certified at once), the
    last round's pricing pass keeps the columns of reduced cost up to ``PRICED_SPAN |L|``
@@ -27,35 +27,25 @@ holds only what defines the columns and produces any of them on demand:
    *path reduced cost* R_j >= r_j (:mod:`spidermatch.solve.path_costs`: the least reduced
    cost of a whole closed path through j); a MIP at the target gap over the columns of
    path reduced cost at most a threshold t (plus the LP support, the stay seed and the
-   incumbent's columns), started from the incumbent U. If U <= L + t, every column that
-   a solution of cost <= U could use is in the MIP (reduced-cost fixing against U) and its
-   proof covers the full model. Otherwise t grows to U - L if that is at most 8 t, else to
-   4 t, and the next MIP starts from U: step by step, never all at once.
+   incumbent's columns), started from the incumbent U.
+4. **Certify or widen.** If U <= L + t, every column that a solution of cost <= U could
+   use is in the MIP (reduced-cost fixing against U) and its proof covers the full model.
+   Otherwise t grows to U - L if that is at most ``JUMP`` t (8 t), else to ``GROWTH`` t
+   (4 t), and the next MIP starts from U: step by step, never all at once.
 
-The bound
----------
-The restricted LP holds the rows its columns touch; a row no built column touches is
-``0 = 0`` or ``0 <= 1`` there, and 0 is an optimal dual for it. So its duals, extended
-by zeros, are multipliers ``y`` for every row of the full model. They are sign-corrected
-as in :mod:`spidermatch.solve.fixing` and then, for **any** such ``y``,
-``L(y) = sum_i y_i b_i(y) + sum_j min(0, r_j)`` with ``r = c - A^T y`` summed over
-*all* columns j of the full model (built or not: the pricing pass generates each
-column's cost and coefficients exactly as ``build_model`` would) is a lower bound on
-every feasible x in [0, 1]^n; no property of the restricted LP or of HiGHS's
-tolerances is used. A solution that uses column j costs at least ``L(y) + max(r_j, 0)``,
-and at least ``L(y) + R_j`` with the path reduced cost R_j >= max(r_j, 0); below, r_j stands
-for R_j. On TOSCA horse5 -> horse0 at 1000 faces (label-free features, 20 adaptation steps)
-the last MIP shrank from 230 k to 74 k columns, and certification from 340 s to 88 s.
-A MIP runs over a set C (with every row of the full model that C touches or that 0
-violates: the others read 0 and hold for every x over C) that contains
-every column with ``r_j <= t``; its bound B_C holds for every solution using columns of
-C only (rows and connectivity cuts are valid for the full model), and every other
-solution costs at least ``O = L(y) + min_{j not in C} max(r_j, 0) > L(y) + t``. So
-``min(B_C, O)`` is a lower bound for the full model (and so is L(y) alone; the larger
-of the two is reported), with HiGHS's bound entering through
-:func:`certified_mip_bound` as for ``rcfix``. The incumbent is certified when ``O`` is
-at least B_C, which holds as soon as ``U <= L(y) + t``, or when it is within the target
-gap of that larger bound.
+The certificate
+---------------
+The restricted LP's duals, extended by zeros to the rows it leaves out and sign-corrected
+(:mod:`spidermatch.solve.fixing`), are multipliers y for every row of the full model, and
+``L(y) = sum_i y_i b_i(y) + sum_j min(0, r_j)``, summed over *all* columns of the full model
+(built or not), is a lower bound on every feasible x in [0, 1]^n; a solution that uses column j
+costs at least ``L(y) + R_j``. A MIP over a column set C that holds every column with
+``R_j <= t`` has a bound B_C for the solutions over C, and every other solution costs at least
+``O = L(y) + min_{j not in C} max(R_j, 0) > L(y) + t``. So ``max(L(y), min(B_C, O))`` is a
+lower bound for the full model (HiGHS's bound entering through :func:`certified_mip_bound`,
+as for ``rcfix``), and the incumbent is certified when ``O`` is at least B_C, which holds as
+soon as ``U <= L(y) + t``, or when it is within the target gap of that bound. The proof, with
+every step: ``docs/method.md``, section 7 ("Column generation: why the certificate holds").
 """
 
 from __future__ import annotations
@@ -97,18 +87,20 @@ BLOCK_COLUMNS = 1_000_000  # edges priced at once (~80 bytes each in flight)
 MAX_ADD = 100_000  # columns added per pricing round at most (the most negative ones)
 LP_REL_GAP = 1e-7  # column generation stops when the Lagrangian bound is this close to the LP value
 MAX_LP_ROUNDS = 200
-FIRST_STEP = 4e-3  # first MIP: columns with reduced cost <= this times |L(y)| (LP gaps are ~0.1-0.5 %) ...
-FIRST_STEP_LAYERS = 600  # ... up to this many curve positions (569-586 at 1000 faces); see first_threshold
+FIRST_STEP = 4e-3  # first MIP: columns with reduced cost <= this times |L(y)| (about the LP's gap with
+# learned features at the default resolution) ...
+FIRST_STEP_LAYERS = 600  # ... up to this many curve positions (about the curves' length there); see
+# first_threshold
 FIRST_STEP_MAX_SCALE = 2.0  # ... and at most twice that on longer curves
 PRICED_SPAN = 0.02  # one pricing pass keeps the columns up to this times |L(y)| for all the MIPs
 GROWTH = 4.0  # each further MIP: the threshold grows by at most this factor (or to U - L(y))
 JUMP = 8.0  # ... unless U - L(y) is within this factor: then straight to U - L(y)
 MAX_STEPS = 10
 MIP_BYTES_PER_COLUMN = 5 * 1024  # a restricted MIP's peak memory in HiGHS, per column (with cuts, flows,
-# the root's analytic-centre copy); measured 3.8-4.5 KiB at 4000 faces (bench/README.md)
+# the root's analytic-centre copy), rounded up from measurements (bench/README.md, solver constants)
 LAST_STEP_MIN_S = 5.0  # a further MIP starts only with at least this much time left ...
-LAST_STEP_MIN_SHARE = 0.05  # ... and this share of the time limit (4000 faces: one started with
-# seconds left spent 20 s past the limit building and loading 1.8 M columns)
+LAST_STEP_MIN_SHARE = 0.05  # ... and this share of the time limit: building and loading a wider MIP
+# does not stop at the time limit (measurements: bench/README.md, solver constants)
 
 
 @dataclass(frozen=True, eq=False)
@@ -445,17 +437,17 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     """Steps 3-4 of the module docstring: MIPs over ``{r_j <= t}`` for a growing threshold t.
 
     Every MIP runs at the target gap: its columns are few (the first one usually already holds
-    the optimum, and stopping it at a looser gap for a quick incumbent made the next threshold
-    2-3x wider on FAUST_r pairs at 1000 faces). Each runs over the columns of reduced
-    cost at most t, the LP support, the stay seed and the incumbent's columns, started from
-    the incumbent. Every column
+    the optimum), and stopping it at a looser gap for a quick incumbent leaves a dearer U and so
+    a wider next threshold (measurements: bench/README.md, solver constants). Each runs over the
+    columns of reduced cost at most t, the LP support, the stay seed and the incumbent's columns,
+    started from the incumbent. Every column
     outside has ``r_j > t``, so any solution using one costs more than ``L + t``: once the
     incumbent U satisfies ``U <= L + t`` the MIP's proof covers the full model. Otherwise
     ``t`` grows (:func:`next_threshold`) to at most ``U - L``, and strictly: a MIP that does
     not certify has ``L + min_{j not in C} r_j < B_C <= U`` with every such ``r_j > t``.
     A MIP stops early once it cannot certify and has nothing more to give the next step
     (:func:`futile_mip_stop`).
-    The column sets are appended to ``built``.
+    The column sets are appended to ``built``. The proof: docs/method.md, section 7.
     """
     incumbent = _lp_incumbent(lazy, lp)
     if incumbent is not None:
@@ -579,12 +571,12 @@ def too_little_time_for_a_step(options: SolverOptions, seconds_left: float) -> b
 def first_threshold(bound: float, n_layers: int) -> float:
     """The first MIP's reduced-cost threshold: ``FIRST_STEP |L|``, scaled up with the curve's length.
 
-    The LP relaxation's gap grows with the resolution (FAUST_r validation pairs, learned
-    features: 0.1-0.5 % at 1000 faces, 1.3-2.5 % at 2000), so a first threshold fixed
-    relative to |L| starts too low at 2000 faces and costs a step: median solve 64 s with
-    0.4 %, 44 s with 0.8 %; at 1000 faces 0.8 % was slower (median 4.6 s against 4.2 s). The
-    scale is capped at ``FIRST_STEP_MAX_SCALE``: at 4000 faces 1.5 % put 474 k columns into the
-    first MIP of 070->071 (LP gap 0.13 %), whose root node HiGHS had not left after 400 s.
+    The LP relaxation's gap grows with the resolution, so a first threshold fixed relative to
+    |L| starts too low on longer curves and costs a MIP step; raised for every resolution, it
+    makes the first MIP of the shorter curves larger than they need and slower. The scale is
+    capped at ``FIRST_STEP_MAX_SCALE``: on a long curve a wider first threshold can put so many
+    columns into the first MIP, even where the LP's gap is small, that HiGHS stays in its root
+    node for minutes (measurements: bench/README.md, solver constants).
     """
     return FIRST_STEP * abs(bound) * min(FIRST_STEP_MAX_SCALE, max(1.0, n_layers / FIRST_STEP_LAYERS))
 
@@ -596,9 +588,10 @@ def futile_mip_stop(outside: float, near: float, rel_gap: float):
     plus twice the gap) the MIP cannot certify. It is stopped then if its dual bound also
     exceeds ``near`` = L + ``JUMP`` t (every solution over its columns is too far from L for
     the next threshold to be U - L: the next step grows fourfold whatever it finds), or once
-    its incumbent is within ``near`` (the next step jumps to U - L with it). On FAUST_r 076->077
-    at 2000 faces the first MIP's columns held no path cheaper than the stay path and it
-    searched 100 s; on TOSCA cat5->cat0 stopping before a good incumbent cost 100 s more.
+    its incumbent is within ``near`` (the next step jumps to U - L with it). A MIP whose columns
+    hold no path cheaper than the stay path would otherwise search on for nothing; stopped
+    before a good incumbent, it would leave the next step a dear one to start from, which costs
+    more time than the stop saves (measurements: bench/README.md, solver constants).
     """
     limit = outside + 2.0 * rel_gap * abs(outside)
 
@@ -613,8 +606,8 @@ def next_threshold(threshold: float, incumbent_gap: float) -> float:
 
     ``incumbent_gap`` is U - L(y); any column of larger reduced cost is fixed by the incumbent,
     so the threshold never needs to exceed it, and a MIP at ``U - L`` certifies. When that is
-    within ``JUMP`` times the current threshold it is taken at once (on FAUST_r 078->079 at 2000
-    faces, 4x first and then U - L cost one more MIP of 44 s); otherwise the threshold grows
+    within ``JUMP`` times the current threshold it is taken at once (growing ``GROWTH``-fold
+    first and then to U - L would cost one more MIP); otherwise the threshold grows
     ``GROWTH``-fold. It exceeds ``threshold`` (see :func:`certify_by_steps`).
     """
     if threshold <= 0 or incumbent_gap <= JUMP * threshold:

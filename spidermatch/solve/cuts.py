@@ -229,9 +229,9 @@ def _leaving_time_to_repair(session: HighsSession, stop_when, options: SolverOpt
     """``stop_when``, and a stop in time for a repair when the limit nears with detached cycles.
 
     When HiGHS's cheapest solution has detached cycles and is cheaper than any closed path it
-    has found, a run that ends at the time limit would have to fall back on the latter (on
-    FAUST_r 076->077 at 4000 faces: the stay path, 415.2, for a solution of 2.0115 whose bound
-    was 2.0067). So the run stops when only the repair's share of the limit is left, and the
+    has found, a run that ends at the time limit would have to fall back on the latter, often
+    the stay path at many times the cost of that solution (measurements: bench/README.md, solver
+    constants). So the run stops when only the repair's share of the limit is left, and the
     repair (:mod:`spidermatch.solve.repair`) turns that solution into a closed path.
     """
     if not math.isfinite(options.time_limit):

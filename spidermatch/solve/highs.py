@@ -35,7 +35,7 @@ logger = logging.getLogger(__name__)
 # HiGHS 1.16's root reduced-cost heuristic aborted the process (free(): invalid pointer) in
 # the presolve of its sub-MIP: docs/solver_failures.md, bench/repro/highs_submip_presolve_abort.py
 HIGHS_WORKAROUNDS = {"mip_heuristic_run_root_reduced_cost": False}
-KEEP_IMPROVING = 16  # improving solutions a session keeps (a full-model vector is 30 MB at 1000 faces)
+KEEP_IMPROVING = 16  # improving solutions a session keeps (each a full-model vector, 8 bytes per column)
 
 
 _PROCESS_THREADS: int | None = None  # HiGHS fixes its thread pool at the first solve of a process
@@ -122,11 +122,12 @@ def _pass_model(highs, model: IlpModel, integer: bool) -> None:
 def highs_time_limit(highs, seconds: float, relax: bool) -> float:
     """The ``time_limit`` option that gives the next ``highs.run()`` ``seconds`` more.
 
-    HiGHS (1.16, and the HiGHS sources since at least 1.7) compares an LP's ``time_limit``
-    with its run clock, ``getRunTime()``, which keeps counting over every run of a ``Highs``
-    object: an LP re-solved after 12 s of earlier runs and given 1 s stopped at once. A MIP
-    is timed by a clock of its own that starts with each run (HiGHS's MIP solver gives its
-    own LP solver ``getRunTime() + left`` the same way). See ``bench/repro/highs_run_clock.py``.
+    HiGHS (1.16, and the HiGHS sources since at least 1.7) compares an LP's ``time_limit`` with
+    its run clock, ``getRunTime()``, which keeps counting over every run of a ``Highs`` object:
+    an LP re-solved after earlier runs that together took longer than its own limit stops at
+    once. A MIP is timed by a clock of its own that starts with each run (HiGHS's MIP solver
+    gives its own LP solver ``getRunTime() + left`` the same way). See
+    ``bench/repro/highs_run_clock.py``.
 
     Parameters
     ----------
@@ -408,4 +409,5 @@ def _read_result(session: HighsSession, wall: float) -> SolveResult:
     )
 
 
-LP_EXTRA = {"solver": "simplex", "simplex_strategy": 1}  # dual simplex: ~5x faster here than IPM
+# dual simplex: faster here than IPM (measurements: bench/README.md, solver constants)
+LP_EXTRA = {"solver": "simplex", "simplex_strategy": 1}

@@ -81,12 +81,13 @@ def run_interruptibly(highs, figures_so_far, cancel: threading.Event, deadline: 
     stopped within ``STOP_GRACE_S`` the solve is abandoned (it dies with the process) and
     :class:`~spidermatch.shutdown.RunInterrupted` carries ``figures_so_far()``.
 
-    HiGHS's own time limit is not checked in those phases either (a 65 s MIP at 1000 faces
-    ran 164 s). Past ``deadline`` (``time.perf_counter()`` seconds) ``cancel`` is set, which
-    the callbacks turn into HiGHS's own interrupt (``user_interrupt``), and the run is waited
-    for: a run is never left running while the process goes on (a solver thread left behind
-    could use memory that Python or HiGHS has meanwhile freed or reused, and ran concurrently
-    with the next solve). Returns when ``highs.run()`` has finished.
+    HiGHS's own time limit is not checked in those phases either, so a MIP can run far past it
+    (measurements: bench/README.md, solver constants). Past ``deadline``
+    (``time.perf_counter()`` seconds) ``cancel`` is set, which the callbacks turn into HiGHS's
+    own interrupt (``user_interrupt``), and the run is waited for: a run is never left running
+    while the process goes on (a solver thread left behind could use memory that Python or HiGHS
+    has meanwhile freed or reused, and ran concurrently with the next solve). Returns when
+    ``highs.run()`` has finished.
     """
     failure: list[BaseException] = []
 

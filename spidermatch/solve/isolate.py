@@ -10,7 +10,8 @@ with status ``"error"`` and those figures, which the CLI writes as ``solver_fail
 (exit code 5).
 
 Cost: ``fork`` copies nothing up front (pages are shared until written); the result
-(a full-model vector, 30 MB at 1000 faces) comes back once through a pipe, ~0.1 s.
+(a full-model vector) comes back once through a pipe, a small cost beside the solve
+(measurements: bench/README.md, solver constants).
 Per-solve isolation (each HiGHS run in a process) would ship every restricted model
 (see ``bench/repro/solver_process_cost.py``) and lose the LP's warm start between the
 rounds of column generation; one process for the whole solve stage keeps both.
@@ -307,9 +308,9 @@ def _overran(known: dict, path, model, wall: float, options: SolverOptions) -> S
     """The result of a solver process killed for running past its time limit.
 
     HiGHS checks neither its time limit nor its interrupt flag in some phases (a MIP's
-    root analytic-centre computation ran more than 10 min past a 600 s limit at 4000 faces
-    with 1.3 M columns). The last incumbent the child reported with its solution is the
-    result, with the last certified bound: "optimal" if they are within
+    root analytic-centre computation on a large model can run many minutes past the limit;
+    measurements: bench/README.md, solver constants). The last incumbent the child reported
+    with its solution is the result, with the last certified bound: "optimal" if they are within
     ``options.mip_rel_gap`` (both hold for the full model), else "feasible"; "no_solution"
     without an incumbent.
     """

@@ -1,9 +1,9 @@
 """Single-commodity flow rows that keep a layer's stretch of the path in one piece.
 
 The connectivity cuts of :mod:`spidermatch.solve.connectivity` remove one detached node
-set at a time, and a MIP can answer each with another one nearby: on FAUST_r 072->079 at
-1000 faces twelve re-solves of ~9 s each returned twelve new detached cycles. For a chosen
-layer ``l`` the rows below exclude every detached cycle of that layer at once.
+set at a time, and a MIP can answer each with another one nearby, re-solve after re-solve
+(measurements: bench/README.md, solver constants). For a chosen layer ``l`` the rows below
+exclude every detached cycle of that layer at once.
 
 A single closed path crosses each layer boundary once, so inside layer ``l`` it is one walk
 ``e_1, ..., e_m`` of intra edges from the vertex where it enters the layer to the vertex

@@ -1,15 +1,15 @@
 """Repair a MIP solution with detached cycles into one closed path nearby.
 
 When a restricted MIP's optimum has detached cycles, the re-solve with their cuts starts from
-the best *connected* solution HiGHS reported, often only the stay path: on FAUST_r 076->077 at
-4000 faces a MIP over 433 k columns found 2.0115 (bound 2.0067) with detached cycles and then
-had to restart from 415.2. The repair keeps the solution's own edges and frees every column of
-the restricted model in a few layers around each layer with a detached cycle (and around the
-other layers of its source vertex, which PES ties to it); a small MIP over those columns, with
-the flow rows of :mod:`spidermatch.solve.layer_flow` in the affected layers, re-routes the path
-there (the windows also cover the layers PES ties to the freed ones, and widen once if the
-first try has no closed path). Its answer is only a start for the re-solve: it proves nothing
-and is checked to be one closed walk before it is used.
+the best *connected* solution HiGHS reported, often only the stay path, which can cost many
+times as much as the solution with detached cycles (measurements: bench/README.md, solver
+constants). The repair keeps the solution's own edges and frees every column of the restricted
+model in a few layers around each layer with a detached cycle (and around the other layers of
+its source vertex, which PES ties to it); a small MIP over those columns, with the flow rows of
+:mod:`spidermatch.solve.layer_flow` in the affected layers, re-routes the path there (the
+windows also cover the layers PES ties to the freed ones, and widen once if the first try has no
+closed path). Its answer is only a start for the re-solve: it proves nothing and is checked to
+be one closed walk before it is used.
 """
 
 from __future__ import annotations

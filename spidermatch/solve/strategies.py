@@ -34,13 +34,14 @@ AUTO = "auto"  # chosen by the features: see strategy_for
 def strategy_for(name: str, feature_name: str) -> str:
     """The strategy to run for ``name`` (``"auto"`` or a strategy) and features called ``feature_name``.
 
-    ``"auto"`` is ``colgen`` for learned (or any non-WKS) features: on the five FAUST_r
-    validation pairs at 1000 faces it certifies the same optima as ``rcfix`` in a fraction of
-    the time and memory. WKS keeps ``rcfix``, for how it fails: with WKS's weak LP relaxation
-    ``colgen`` certified all five pairs at 500 faces within 300 s (``rcfix`` three, and
-    matchings within 2.7 and 4.4 % of the bound on the others), but at 1000 faces its only
-    closed path at the limit was the stay path (gap > 99 %, two pairs) where ``rcfix`` returned
-    matchings within 3.6 and 5.4 % of the bound. Any other name is returned unchanged.
+    ``"auto"`` is ``colgen`` for learned (or any non-WKS) features: their LP relaxation is
+    tight, and ``colgen`` certifies the same optima as ``rcfix`` without building the full
+    model, in a fraction of the time and memory. WKS keeps ``rcfix``, for how it fails: WKS's
+    LP relaxation is weak, its gap far above ``colgen``'s first thresholds (tuned for learned
+    features), and where neither certifies in time ``colgen``'s only closed path can be the
+    stay path while ``rcfix`` still returns a matching within a few percent of the bound, even
+    though ``colgen`` certifies more pairs at low resolution (measurements: bench/README.md,
+    solver constants). Any other name is returned unchanged.
     """
     if name != AUTO:
         return name
