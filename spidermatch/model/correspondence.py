@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spidermatch.model.product_graph import INTRA, STAY, ProductGraph
+from spidermatch.model.solution import used_columns
 
 logger = logging.getLogger(__name__)
 
@@ -41,10 +42,10 @@ class MatchingPath:
 
 
 def active_edges(graph: ProductGraph, x: np.ndarray) -> np.ndarray:
-    """(layer, y_from, next_layer, y_to, kind) of edges with x > 0.5, shape (N, 5)."""
+    """(layer, y_from, next_layer, y_to, kind) of the edges x uses (:func:`used_columns`), shape (N, 5)."""
     if x.shape != (graph.n_edges,):
         raise SolutionError(f"solution has {x.shape[0]} entries, product graph {graph.n_edges} edges")
-    return graph.edge_tuples(np.flatnonzero(x > 0.5))
+    return graph.edge_tuples(used_columns(x))
 
 
 def extract_path(graph: ProductGraph, x: np.ndarray) -> MatchingPath:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spidermatch.geometry.mesh import directed_edges
+from spidermatch.model.solution import FRACTIONAL
 
 INTRA, INTER, STAY = 0, 1, 2
 KIND_NAMES = ("intra", "inter", "stay")
@@ -93,7 +94,7 @@ class ProductGraph:
         return np.stack([layer, self.block_src[k], next_layer, self.block_dst[k], kind], axis=1)
 
 
-def split_layers(graph: ProductGraph, x: np.ndarray, tolerance: float = 1e-6) -> np.ndarray:
+def split_layers(graph: ProductGraph, x: np.ndarray, tolerance: float = FRACTIONAL) -> np.ndarray:
     """Layers whose crossing to the next layer is shared by more than one edge.
 
     An integer solution crosses every layer boundary on exactly one inter or stay edge;

@@ -63,6 +63,7 @@ from spidermatch.model.curve import SpiderCurve
 from spidermatch.model.ilp import IlpModel
 from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import INTRA, ProductGraph
+from spidermatch.model.solution import LP_SUPPORT, used_columns
 from spidermatch.shutdown import RunInterrupted
 from spidermatch.solve.connectivity import detached_components
 from spidermatch.solve.cuts import CutPool, imposes_paths, solve_with_cuts
@@ -272,7 +273,7 @@ class ColgenLp:
     pricing: Pricing
     n_rows: int
 
-    def support(self, tolerance: float = 1e-9) -> np.ndarray:
+    def support(self, tolerance: float = LP_SUPPORT) -> np.ndarray:
         """Edge ids the LP solution uses, sorted."""
         return self.columns[self.x > tolerance]
 
@@ -458,7 +459,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     if incumbent is None:  # the stay path satisfies every row and cut: a run that times out still has it
         incumbent = np.zeros(lazy.n_vars)
         incumbent[stay] = 1.0
-    report_known(objective_of(lazy, incumbent), lp.bound, np.flatnonzero(incumbent > 0.5))
+    report_known(objective_of(lazy, incumbent), lp.bound, used_columns(incumbent))
     base = np.union1d(lp.support(), stay)
     threshold, best = first_threshold(lp.bound, lazy.graph.n_layers), None
     priced = with_path_reduced_costs(lazy, lp.pricing)
@@ -468,7 +469,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         selection = up_to(priced, threshold)
         columns = np.union1d(selection.columns, base)
         if incumbent is not None:
-            columns = np.union1d(columns, np.flatnonzero(incumbent > 0.5))
+            columns = np.union1d(columns, used_columns(incumbent))
         too_large = mip_memory_problem(columns.size)
         if too_large:
             return _stopped_before_mip(lazy, lp, incumbent, best, too_large)
@@ -490,7 +491,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         proven_here = result.status == "optimal" and outside >= result.bound  # the MIP's proof covers all
         certified = proven_here or relative_gap(result.objective, bound) <= options.mip_rel_gap
         best = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
-        report_known(result.objective, bound, np.flatnonzero(incumbent > 0.5))
+        report_known(result.objective, bound, used_columns(incumbent))
         logger.info(
             "colgen step %d: threshold %.3g, objective %.8g, bound for the full model %.8g",
             step, threshold, result.objective, bound,
@@ -621,7 +622,7 @@ def _count_distinct(column_sets: list[np.ndarray]) -> int:
 
 def objective_of(lazy: LazyModel, x: np.ndarray) -> float:
     """Objective of a full 0/1 vector x (n_vars,)."""
-    used = np.flatnonzero(x > 0.5)
+    used = used_columns(x)
     return float(lazy.costs(used) @ x[used])
 
 

@@ -24,6 +24,7 @@ from scipy.sparse.csgraph import connected_components
 
 from spidermatch.model.correspondence import _euler_walk, active_edges
 from spidermatch.model.product_graph import INTRA, ProductGraph
+from spidermatch.model.solution import used_columns
 
 
 def detached_components(graph: ProductGraph, x: np.ndarray) -> list[np.ndarray]:
@@ -37,7 +38,7 @@ def detached_components(graph: ProductGraph, x: np.ndarray) -> list[np.ndarray]:
     """
     if np.shape(x) != (graph.n_edges,):
         active_edges(graph, x)  # raises SolutionError naming both sizes
-    return detached_components_of_edges(graph, np.flatnonzero(x > 0.5))
+    return detached_components_of_edges(graph, used_columns(x))
 
 
 def detached_components_of_edges(graph: ProductGraph, edge_ids: np.ndarray) -> list[np.ndarray]:
@@ -73,7 +74,7 @@ def walk_through_layer_0(tuples: np.ndarray) -> list[int] | None:
 
 def is_closed_path(graph: ProductGraph, x_sub: np.ndarray, columns: np.ndarray | None = None) -> bool:
     """Whether x_sub (k,) over the edge ids ``columns`` (k,; all edges if None) has no detached cycle."""
-    used = np.flatnonzero(np.asarray(x_sub) > 0.5)
+    used = used_columns(x_sub)
     return not detached_components_of_edges(graph, used if columns is None else columns[used])
 
 

@@ -18,6 +18,7 @@ import scipy.sparse as sp
 
 from spidermatch import shutdown
 from spidermatch.model.ilp import IlpModel
+from spidermatch.model.solution import used_columns
 from spidermatch.solve.interrupt import OVERRUN_GRACE_S, run_interruptibly
 from spidermatch.solve.progress import ProgressLog, report_known
 from spidermatch.solve.types import (
@@ -238,7 +239,7 @@ class HighsSession:
         """The full-model columns (sorted ids) a 0/1 solution x (n,) of this session sets, if known."""
         if self.full_columns is None:
             return None
-        return self.full_columns[np.flatnonzero(x[: self.full_columns.size] > 0.5)]
+        return self.full_columns[used_columns(x[: self.full_columns.size])]
 
     def set_solution(self, x: np.ndarray) -> None:
         """Offer a feasible 0/1 vector (n,) as a starting incumbent."""

@@ -33,6 +33,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from spidermatch.model.product_graph import INTRA, ProductGraph
+from spidermatch.model.solution import used_columns
 from spidermatch.solve.connectivity import walk_through_layer_0
 
 
@@ -129,7 +130,7 @@ def flow_values(graph: ProductGraph, columns: np.ndarray, x_sub: np.ndarray, flo
     layer from it on (module docstring); edges off the path get 0. Raises ``ValueError`` if
     x_sub is not one closed walk crossing every boundary once.
     """
-    used = np.flatnonzero(x_sub > 0.5)
+    used = used_columns(x_sub)
     tuples = graph.edge_tuples(columns[used])
     order = walk_through_layer_0(tuples)
     if order is None:

@@ -22,6 +22,7 @@ import numpy as np
 from spidermatch.model.curve import SpiderCurve
 from spidermatch.model.ilp import IlpModel
 from spidermatch.model.product_graph import ProductGraph
+from spidermatch.model.solution import LP_SUPPORT, used_columns
 from spidermatch.shutdown import RunInterrupted
 from spidermatch.solve.cuts import CutPool, imposes_paths, solve_with_cuts
 from spidermatch.solve.fixing import DualBound, dual_bound
@@ -86,7 +87,7 @@ def seed_columns(lp: LpSolve, scale: float) -> np.ndarray:
     reduced = lp.dual.reduced
     n_keep = min(reduced.size, max(1, int(SEED_FRACTION * scale * reduced.size)))
     threshold = max(SEED_GAP * scale * abs(lp.dual.bound), np.partition(reduced, n_keep - 1)[n_keep - 1])
-    return np.flatnonzero((reduced <= threshold) | (lp.x > 1e-9))
+    return np.flatnonzero((reduced <= threshold) | (lp.x > LP_SUPPORT))
 
 
 def full_model_figures(incumbent: float | None, certified_bound: float) -> dict:
@@ -159,7 +160,7 @@ def solve_reduced_cost_fixing(
         certified = result.status == "optimal" and gap == options.mip_rel_gap and outside >= result.bound
         bound = min(result.bound, outside)
         result = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
-        report_known(result.objective, bound, np.flatnonzero(incumbent > 0.5))
+        report_known(result.objective, bound, used_columns(incumbent))
         logger.info(
             "rcfix phase %d: objective %.6g, bound for the full model %.6g", phase, result.objective, bound
         )

@@ -22,6 +22,7 @@ import numpy as np
 
 from spidermatch.model.ilp import IlpModel, restrict_columns
 from spidermatch.model.product_graph import ProductGraph
+from spidermatch.model.solution import USED
 from spidermatch.solve.connectivity import is_closed_path
 from spidermatch.solve.highs import HighsSession
 from spidermatch.solve.layer_flow import SessionFlows
@@ -91,7 +92,7 @@ def repair_detached(
 
     """
     k = column_ids.size
-    used = np.asarray(x_sub[:k]) > 0.5
+    used = np.asarray(x_sub[:k]) > USED
     layer_of = column_ids // graph.block_size
     deadline = time.perf_counter() + options.time_limit
     for window in REPAIR_WINDOWS:

@@ -15,6 +15,7 @@ import numpy as np
 from spidermatch.model.curve import SpiderCurve
 from spidermatch.model.ilp import IlpModel
 from spidermatch.model.product_graph import ProductGraph
+from spidermatch.model.solution import FRACTIONAL
 
 
 @dataclass(frozen=True)
@@ -155,7 +156,7 @@ def remaining(options: SolverOptions, start: float) -> SolverOptions:
     return replace(options, time_limit=left)
 
 
-def count_fractional(x: np.ndarray, tolerance: float = 1e-6) -> int:
+def count_fractional(x: np.ndarray, tolerance: float = FRACTIONAL) -> int:
     """How many entries of an LP solution x (n,) are more than ``tolerance`` away from 0 and 1."""
     return int(np.sum((x > tolerance) & (x < 1 - tolerance)))
 
