@@ -9,9 +9,10 @@ from spidermatch.model.correspondence import active_edges, check_solution
 from spidermatch.model.curve import SpiderCurve, spider_curve
 from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import build_product_graph
-from spidermatch.solve.colgen import price, stay_seed
 from spidermatch.solve.fixing import dual_bound, sign_corrected_duals
 from spidermatch.solve.plain import solve_plain
+from spidermatch.solve.pricing import price
+from spidermatch.solve.seeds import SEED_NEIGHBOURS, stay_seed
 from spidermatch.solve.strategies import solve_with_strategy
 from spidermatch.solve.types import SolverOptions
 from tests.test_ilp import TRIANGLE, brute_force
@@ -70,8 +71,8 @@ def test_colgen_bound_holds_when_the_optimum_needs_columns_the_seed_lacked(seed,
     plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
     seeds = []
 
-    def stay_only(model, neighbours=colgen.SEED_NEIGHBOURS):  # the first restricted model: stays at y0 only
-        seeds.append(colgen.stay_seed(model))
+    def stay_only(model, neighbours=SEED_NEIGHBOURS):  # the first restricted model: stays at y0 only
+        seeds.append(stay_seed(model))
         return seeds[-1]
 
     monkeypatch.setattr(colgen, "path_band_seed", stay_only)
@@ -123,7 +124,7 @@ def test_colgen_needs_a_lazy_model():
 
 
 def test_a_slice_of_one_pricing_pass_equals_pricing_at_the_lower_threshold(rng):
-    from spidermatch.solve.colgen import up_to
+    from spidermatch.solve.pricing import up_to
 
     lazy = creature_lazy(24, 3)
     model = lazy.full_model()

@@ -3,10 +3,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from spidermatch.solve.colgen import generate_columns, price, stay_seed, with_path_reduced_costs
+from spidermatch.solve.colgen import generate_columns
 from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.path_costs import path_reduced_costs
 from spidermatch.solve.plain import solve_plain
+from spidermatch.solve.pricing import price, with_path_reduced_costs
+from spidermatch.solve.seeds import stay_seed
 from spidermatch.solve.types import SolverOptions
 from tests.test_colgen import creature_lazy, tiny_lazy
 from tests.test_ilp import checked_walks

@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 
 from spidermatch.model.lazy_model import LazyModel
-from spidermatch.solve.colgen import path_band_seed
 from spidermatch.solve.connectivity import detached_components
 from spidermatch.solve.path_seed import cheapest_closed_path, path_plausible
 from spidermatch.solve.plain import solve_plain
+from spidermatch.solve.seeds import path_band_seed
 from spidermatch.solve.types import SolverOptions
 from tests.test_colgen import creature_lazy
 

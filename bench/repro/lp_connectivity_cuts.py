@@ -52,9 +52,10 @@ def violated_components(graph, columns: np.ndarray, x: np.ndarray) -> list[np.nd
 
 def main() -> None:
     from spidermatch.pipeline import MatchSettings, prepare
-    from spidermatch.solve.colgen import generate_columns, path_band_seed, stay_seed
+    from spidermatch.solve.colgen import generate_columns
     from spidermatch.solve.connectivity import connectivity_cuts
     from spidermatch.solve.highs import HighsSession
+    from spidermatch.solve.seeds import path_band_seed, stay_seed
     from spidermatch.solve.types import SolverOptions
 
     parser = argparse.ArgumentParser(

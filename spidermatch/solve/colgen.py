@@ -23,9 +23,10 @@ holds only what defines the columns and produces any of them on demand:
 3. **Growing MIPs.** With the final duals y and bound L = L(y) (if the LP solution is
    integral, one closed path and within the target gap of L, it is certified at once), the
    last round's pricing pass keeps the columns of reduced cost up to ``PRICED_SPAN |L|``
-   (:func:`up_to` slices it for each step) and replaces each reduced cost by the column's
-   *path reduced cost* R_j >= r_j (:mod:`spidermatch.solve.path_costs`: the least reduced
-   cost of a whole closed path through j); a MIP at the target gap over the columns of
+   (:func:`~spidermatch.solve.pricing.up_to` slices it for each step) and replaces each
+   reduced cost by the column's *path reduced cost* R_j >= r_j
+   (:mod:`spidermatch.solve.path_costs`: the least reduced cost of a whole closed path
+   through j); a MIP at the target gap over the columns of
    path reduced cost at most a threshold t (plus the LP support, the stay seed and the
    incumbent's columns), started from the incumbent U.
 4. **Certify or widen.** If U <= L + t, every column that a solution of cost <= U could
@@ -62,16 +63,16 @@ from spidermatch.memory import GIB, available_memory
 from spidermatch.model.curve import SpiderCurve
 from spidermatch.model.ilp import IlpModel
 from spidermatch.model.lazy_model import LazyModel
-from spidermatch.model.product_graph import INTRA, ProductGraph
+from spidermatch.model.product_graph import ProductGraph
 from spidermatch.model.solution import LP_SUPPORT, used_columns
 from spidermatch.shutdown import RunInterrupted
 from spidermatch.solve.connectivity import detached_components
-from spidermatch.solve.cuts import CutPool, imposes_paths, solve_with_cuts
+from spidermatch.solve.cuts import CutPool, solve_with_cuts
 from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import LP_EXTRA, HighsSession
-from spidermatch.solve.path_costs import path_reduced_costs
-from spidermatch.solve.path_seed import cheapest_closed_path, path_plausible
+from spidermatch.solve.pricing import Pricing, price, up_to, with_path_reduced_costs
 from spidermatch.solve.progress import report_known
+from spidermatch.solve.seeds import path_band_seed, stay_seed
 from spidermatch.solve.types import (
     LpNotSolved,
     SolveResult,
@@ -83,8 +84,6 @@ from spidermatch.solve.types import (
 
 logger = logging.getLogger(__name__)
 
-SEED_NEIGHBOURS = 6  # per source vertex: targets of lowest feature cost whose edges (and 1-ring) seed the LP
-BLOCK_COLUMNS = 1_000_000  # edges priced at once (~80 bytes each in flight)
 MAX_ADD = 100_000  # columns added per pricing round at most (the most negative ones)
 LP_REL_GAP = 1e-7  # column generation stops when the Lagrangian bound is this close to the LP value
 MAX_LP_ROUNDS = 200
@@ -102,142 +101,6 @@ MIP_BYTES_PER_COLUMN = 5 * 1024  # a restricted MIP's peak memory in HiGHS, per 
 LAST_STEP_MIN_S = 5.0  # a further MIP starts only with at least this much time left ...
 LAST_STEP_MIN_SHARE = 0.05  # ... and this share of the time limit: building and loading a wider MIP
 # does not stop at the time limit (measurements: bench/README.md, solver constants)
-
-
-@dataclass(frozen=True, eq=False)
-class Pricing:
-    """One pricing pass over every column of the full model for fixed row multipliers.
-
-    Attributes
-    ----------
-    bound : float
-        ``L(y)``, a lower bound for the full model.
-    columns : np.ndarray, shape (k,)
-        Sorted edge ids with reduced cost at most ``cutoff``.
-    reduced : np.ndarray, shape (k,)
-        Their reduced costs, or after :func:`with_path_reduced_costs` their path reduced costs: a solution
-        using column j costs at least ``bound + reduced[j]`` (if positive).
-    cutoff : float
-    min_outside : float
-        Smallest reduced cost of the columns not selected; inf if none.
-
-    """
-
-    bound: float
-    columns: np.ndarray
-    reduced: np.ndarray
-    cutoff: float
-    min_outside: float
-
-
-def price(lazy: LazyModel, y: np.ndarray, threshold: float) -> Pricing:
-    """Reduced costs of every column, block by block; keep those at most ``threshold``.
-
-    Parameters
-    ----------
-    lazy : LazyModel
-    y : np.ndarray, shape (n_rows,)
-        Sign-corrected row multipliers.
-    threshold : float
-
-    """
-    potentials = lazy.potentials(y)
-    block = lazy.graph.block_size
-    negative_sums, kept_ids, kept_reduced, min_outside = [], [], [], math.inf
-    for start, stop in lazy.layer_blocks(max(1, BLOCK_COLUMNS // block)):
-        reduced = lazy.block_reduced_costs(start, stop, potentials)
-        negative_sums.append(float(np.minimum(reduced, 0.0).sum()))
-        keep = reduced <= threshold
-        kept_ids.append(np.flatnonzero(keep) + start * block)
-        kept_reduced.append(reduced[keep])
-        if not keep.all():
-            min_outside = min(min_outside, float(reduced[~keep].min()))
-    bound = lazy.row_term(y) + math.fsum(negative_sums)
-    return Pricing(bound, np.concatenate(kept_ids), np.concatenate(kept_reduced), threshold, min_outside)
-
-
-def with_path_reduced_costs(lazy: LazyModel, priced: Pricing) -> Pricing:
-    """The same pass with path reduced costs (:mod:`spidermatch.solve.path_costs`) in place of ``reduced``.
-
-    Every column of the pass keeps its id; ``min_outside`` stays valid, as a column outside has
-    path reduced cost at least its reduced cost, above the cutoff.
-    """
-    if not imposes_paths(lazy):
-        return priced  # solutions need not be closed paths: reduced costs only
-    start = time.perf_counter()
-    path_costs = path_reduced_costs(lazy.graph, priced.columns, priced.reduced, priced.cutoff)
-    logger.info(
-        "colgen: path reduced costs of %d columns (%.1f s); %d of them at most the cutoff %.3g",
-        priced.columns.size, time.perf_counter() - start, int(np.sum(path_costs <= priced.cutoff)),
-        priced.cutoff,
-    )  # fmt: skip
-    return replace(priced, reduced=path_costs)
-
-
-def stay_seed(lazy: LazyModel) -> np.ndarray:
-    """Stay edges at the target vertex y0 of cheapest all-stay path, one per layer, shape (L,).
-
-    Together they satisfy CYC, CON, PES, ANS and every connectivity cut.
-    """
-    graph, c = lazy.graph, lazy.curve.vertices
-    step = np.linalg.norm(lazy.source_verts[c] - lazy.source_verts[np.roll(c, -1)], axis=1)
-    totals = step @ (lazy.vertex_costs[c] + lazy.vertex_costs[np.roll(c, -1)])  # (V_Y,)
-    y0 = int(np.argmin(totals))
-    stay_entry = int(
-        np.flatnonzero((graph.block_kind != INTRA) & (graph.block_src == y0) & (graph.block_dst == y0))[0]
-    )
-    return np.arange(graph.n_layers, dtype=np.int64) * graph.block_size + stay_entry
-
-
-def feature_plausible(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarray:
-    """Targets plausible by features per source vertex, shape (V_X, V_Y), bool.
-
-    Target y is plausible for source vertex p if it is among p's ``neighbours`` of lowest
-    feature cost R[p] or adjacent to one of them.
-    """
-    graph, costs = lazy.graph, lazy.vertex_costs
-    k = min(neighbours, graph.n_target)
-    nearest = np.argpartition(costs, k - 1, axis=1)[:, :k]
-    plausible = np.zeros(costs.shape, dtype=bool)
-    plausible[np.arange(costs.shape[0])[:, None], nearest] = True
-    edges = graph.target_edges
-    adjacency = sp.csr_matrix(
-        (np.ones(edges.shape[0]), (edges[:, 0], edges[:, 1])), shape=(graph.n_target,) * 2
-    )
-    plausible |= (sp.csr_matrix(plausible, dtype=np.float64) @ adjacency).toarray() > 0
-    return plausible
-
-
-def edges_between_plausible(lazy: LazyModel, plausible: np.ndarray) -> np.ndarray:
-    """Sorted edge ids (k,) whose two ends are plausible targets of their curve vertices.
-
-    ``plausible`` has shape (V_X, V_Y): edge ((l, a), (l', b)) is kept if a is plausible for
-    the curve vertex of layer l and b for that of layer l'.
-    """
-    graph, chosen, block = lazy.graph, [], lazy.graph.block_size
-    for start, stop in lazy.layer_blocks(max(1, BLOCK_COLUMNS // block)):
-        layer, entry, next_layer = lazy.split(np.arange(start * block, stop * block))
-        p, q = lazy.curve.vertices[layer], lazy.curve.vertices[next_layer]
-        keep = plausible[p, graph.block_src[entry]] & plausible[q, graph.block_dst[entry]]
-        chosen.append(np.flatnonzero(keep) + start * block)
-    return np.concatenate(chosen)
-
-
-def feature_seed(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarray:
-    """Edges between feature-plausible targets of consecutive curve vertices, sorted edge ids (k,)."""
-    return edges_between_plausible(lazy, feature_plausible(lazy, neighbours))
-
-
-def path_band_seed(lazy: LazyModel, neighbours: int = SEED_NEIGHBOURS) -> np.ndarray:
-    """The feature seed plus a band around a cheap closed path, sorted edge ids (k,).
-
-    See :mod:`spidermatch.solve.path_seed`: the path satisfies CYC and CON only, but its
-    band (a few layers and rings around it, per source vertex) usually holds a near-optimal
-    path of the full model, so column generation starts close to the LP's optimum.
-    """
-    path, _ = cheapest_closed_path(lazy)
-    plausible = feature_plausible(lazy, neighbours) | path_plausible(lazy, path)
-    return np.union1d(edges_between_plausible(lazy, plausible), path)
 
 
 @dataclass(frozen=True, eq=False)
@@ -419,19 +282,6 @@ def _lp_certified(
         0,
         "Optimal (LP solution integral)",
     )
-
-
-def up_to(priced: Pricing, threshold: float) -> Pricing:
-    """The part of a pricing pass at most ``threshold`` (which must not exceed its cutoff).
-
-    Columns between ``threshold`` and the pass's cutoff move outside: ``min_outside`` is the
-    smaller of their least reduced cost and the pass's own ``min_outside``.
-    """
-    if threshold > priced.cutoff:
-        raise ValueError(f"threshold {threshold} above the pricing pass's cutoff {priced.cutoff}")
-    keep = priced.reduced <= threshold
-    min_outside = min(priced.min_outside, float(priced.reduced[~keep].min(initial=math.inf)))
-    return Pricing(priced.bound, priced.columns[keep], priced.reduced[keep], threshold, min_outside)
 
 
 def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResult:
