@@ -81,3 +81,57 @@ def test_freed_layers_also_free_the_windows_of_the_layers_pes_ties_to_them():
     freed = freed_layers([0], first_layer, 20, window=2)
     assert np.flatnonzero(freed).tolist() == [0, 1, 2, 3, 4, 5, 6, 7, 13, 14, 15, 16, 17, 18, 19]
     assert np.flatnonzero(freed_layers([0], None, 20, window=2)).tolist() == [0, 1, 2, 18, 19]
+
+
+def reachable(graph, start: np.ndarray, rings: int) -> set:
+    """Target vertices within ``rings`` edges of ``start`` (breadth first)."""
+    seen, frontier = set(start.tolist()), set(start.tolist())
+    for _ in range(rings):
+        frontier = {int(b) for a, b in graph.target_edges if int(a) in frontier} - seen
+        seen |= frontier
+    return seen
+
+
+def test_nearby_columns_lie_in_the_chosen_layers_within_the_rings_of_the_path():
+    from spidermatch.solve.repair import nearby_columns
+    from tests.test_colgen import creature_lazy
+
+    lazy = creature_lazy(24, 3)
+    graph = lazy.graph
+    path = np.flatnonzero(solve_plain(lazy.full_model(), graph, lazy.curve, EXACT).x > 0.5)
+    layers = window_layers([graph.n_layers // 2], graph.n_layers, window=1)
+    found = nearby_columns(graph, path, layers, rings=1)
+    tuples, on_path = graph.edge_tuples(found), graph.edge_tuples(path)
+    assert set(np.unique(tuples[:, 0]).tolist()) == set(np.flatnonzero(layers).tolist())
+    for layer in np.flatnonzero(layers):
+        here = np.isin(on_path[:, 0], [layer - 1, layer, layer + 1]) | np.isin(
+            on_path[:, 2], [layer - 1, layer, layer + 1]
+        )
+        visited = np.unique(on_path[here][:, [1, 3]])
+        near = reachable(graph, visited, 1)
+        mine = tuples[tuples[:, 0] == layer]
+        assert set(mine[:, 1].tolist()) | set(mine[:, 3].tolist()) <= near
+    in_layers = path[layers[path // graph.block_size]]
+    assert set(in_layers.tolist()) <= set(found.tolist())  # the path's own edges are near it
+
+
+def test_a_repair_with_nearby_columns_reroutes_where_the_restricted_columns_cannot():
+    """A path broken in two layers, restricted columns of the stay path only: the repair mends the path."""
+    from spidermatch.solve.repair import repair_with_nearby_columns
+    from spidermatch.solve.seeds import stay_seed
+    from tests.test_colgen import creature_lazy
+
+    lazy = creature_lazy(24, 3)
+    graph = lazy.graph
+    optimum = solve_plain(lazy.full_model(), graph, lazy.curve, EXACT)
+    path = np.flatnonzero(optimum.x > 0.5)
+    broken_layers = [graph.n_layers // 2, graph.n_layers // 2 + 1]
+    broken = path[~np.isin(path // graph.block_size, broken_layers)]
+    restricted = np.sort(stay_seed(lazy))
+    pool = CutPool(first_layer=lazy.curve.first_layer)
+    repaired = repair_with_nearby_columns(lazy, restricted, broken, broken_layers, pool, EXACT)
+    assert repaired is not None and passes_checker(lazy.curve, graph, repaired)
+    assert detached_components(graph, repaired) == []
+    uses = np.flatnonzero(repaired > 0.5)
+    assert not set(uses.tolist()) <= set(np.union1d(restricted, broken).tolist())  # columns it added
+    assert optimum.objective - 1e-9 <= lazy.costs(uses).sum() <= optimum.objective * (1 + 1e-3)

@@ -72,6 +72,7 @@ from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import LP_EXTRA, HighsSession
 from spidermatch.solve.pricing import Pricing, price, up_to, with_path_reduced_costs
 from spidermatch.solve.progress import report_known
+from spidermatch.solve.repair import REPAIR_TIME_S, REPAIR_TIME_SHARE, repair_with_nearby_columns
 from spidermatch.solve.seeds import path_band_seed, stay_seed
 from spidermatch.solve.types import (
     LpNotSolved,
@@ -335,10 +336,12 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
             raise
         if result.x is None:
             break  # time limit before a solution of this step: keep the last one
-        incumbent = result.x
         # both are valid lower bounds for the full model (L(y) alone may already be close enough)
         bound = max(lp.bound, min(result.bound, outside))
         proven_here = result.status == "optimal" and outside >= result.bound  # the MIP's proof covers all
+        if not proven_here:  # a cheaper solution cut off for detached cycles: re-route it
+            result = _with_nearby_repair(lazy, columns, pool, result, remaining(options, start))
+        incumbent = result.x
         certified = proven_here or relative_gap(result.objective, bound) <= options.mip_rel_gap
         best = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
         report_known(result.objective, bound, used_columns(incumbent))
@@ -362,6 +365,32 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     if best is None:
         return replace(result, bound=lp.bound, gap=math.nan)
     return replace(best, status="feasible", message=f"not certified within {MAX_STEPS} steps")
+
+
+def _with_nearby_repair(lazy, columns, pool, result: SolveResult, options: SolverOptions) -> SolveResult:
+    """``result`` with a cheaper closed path near the solution its MIP cut off, when one is found.
+
+    The restricted MIP may end with only an expensive closed path (the stay path) after its
+    cheapest solution had detached cycles that no re-routing within its columns mends
+    (:func:`~spidermatch.solve.repair.repair_with_nearby_columns` also uses nearby columns of
+    the full model). The closed path found is an incumbent: the step's bound is untouched, so
+    the certificate (docs/method.md, section 7) holds as before.
+    """
+    detached, pool.detached = pool.detached, None
+    if detached is None or detached.objective >= result.objective or options.time_limit <= 0:
+        return result
+    budget = replace(options, time_limit=min(REPAIR_TIME_S, REPAIR_TIME_SHARE * options.time_limit))
+    repaired = repair_with_nearby_columns(lazy, columns, detached.used, detached.layers, pool, budget)
+    if repaired is None:
+        return result
+    objective = objective_of(lazy, repaired)
+    if objective >= result.objective:
+        return result
+    logger.info(
+        "colgen: a closed path of cost %.8g near the cut-off solution (was %.8g)", objective, result.objective
+    )
+    status = "feasible" if result.status == "optimal" else result.status
+    return replace(result, x=repaired, objective=objective, status=status)
 
 
 def mip_memory_problem(n_columns: int, room: int | None = None) -> str | None:

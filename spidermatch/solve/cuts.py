@@ -18,6 +18,7 @@ import scipy.sparse as sp
 
 from spidermatch.model.ilp import IlpModel, restrict_columns
 from spidermatch.model.product_graph import ProductGraph
+from spidermatch.model.solution import used_columns
 from spidermatch.solve.connectivity import (
     connectivity_cuts,
     detached_components,
@@ -35,6 +36,15 @@ logger = logging.getLogger(__name__)
 MAX_CUT_ROUNDS = 100
 
 
+@dataclass(frozen=True)
+class DetachedSolution:
+    """A solution that connectivity cuts cut off: its edge ids (m,), its cost and its cycles' layers."""
+
+    used: np.ndarray
+    objective: float
+    layers: set
+
+
 @dataclass
 class CutPool:
     """Connectivity cuts found so far, in full-model columns (shared between sub-solves).
@@ -48,6 +58,12 @@ class CutPool:
     two_cycles: set = field(default_factory=set)
     flow_layers: set = field(default_factory=set)
     first_layer: np.ndarray | None = None
+    detached: DetachedSolution | None = None
+
+    def note_detached_solution(self, used: np.ndarray, objective: float, layers: set) -> None:
+        """Keep the cheapest solution with detached cycles seen (its edge ids), for a later repair."""
+        if self.detached is None or objective < self.detached.objective:
+            self.detached = DetachedSolution(used, float(objective), set(layers))
 
     def note_detached(self, graph: ProductGraph, components: list[np.ndarray]) -> set:
         """Remember the layers of detached components for flow rows; returns these layers.
@@ -194,6 +210,7 @@ def solve_with_cuts(
         rows, lower, upper = connectivity_cuts(graph, components)
         pool.add(rows, lower, upper)  # for this session's next run and for later solves
         affected = pool.note_detached(graph, components)
+        pool.note_detached_solution(used_columns(x), result.objective, affected)
         left = remaining(options, start)
         if left.time_limit <= 0:
             return _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds)

@@ -19,8 +19,10 @@ import time
 from dataclasses import replace
 
 import numpy as np
+import scipy.sparse as sp
 
 from spidermatch.model.ilp import IlpModel, restrict_columns
+from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import ProductGraph
 from spidermatch.model.solution import USED
 from spidermatch.solve.connectivity import is_closed_path
@@ -35,6 +37,7 @@ REPAIR_WINDOWS = (3, 12)  # layers on each side of an affected layer whose colum
 REPAIR_TIME_S = 30.0  # the repair MIP's time limit at most ...
 REPAIR_TIME_SHARE = 0.2  # ... and, between cut rounds, at most this share of the time left
 REPAIR_GAP = 1e-3  # a start, not a proof: stop within this relative gap
+NEARBY_RINGS = 2  # a widened repair adds the columns within this many target rings of the solution
 
 
 def window_layers(layers, n_layers: int, window: int = REPAIR_WINDOWS[0]) -> np.ndarray:
@@ -131,3 +134,98 @@ def _local_mip(model, graph, local_ids, positions, pool, options) -> np.ndarray 
         result.wall_time,
     )
     return local_x
+
+
+def nearby_columns(graph: ProductGraph, used: np.ndarray, layers: np.ndarray, rings: int = NEARBY_RINGS):
+    """Edge ids of ``layers`` between target vertices near where the solution ``used`` runs.
+
+    Parameters
+    ----------
+    graph : ProductGraph
+    used : np.ndarray, shape (m,)
+        Edge ids of a solution (e.g. one with detached cycles).
+    layers : np.ndarray, shape (L,), bool
+        The layers whose columns may be added.
+    rings : int
+        A layer's columns are those whose two target vertices lie within ``rings`` rings of a
+        vertex the solution visits in that layer or the layers before and after it.
+
+    Returns
+    -------
+    np.ndarray, shape (k,), int64
+        Sorted edge ids.
+
+    """
+    n_layers, n = graph.n_layers, graph.n_target
+    tuples = graph.edge_tuples(used)
+    visited = np.zeros((n_layers, n), dtype=bool)
+    visited[tuples[:, 0], tuples[:, 1]] = True
+    visited[tuples[:, 2], tuples[:, 3]] = True
+    visited |= np.roll(visited, 1, axis=0) | np.roll(visited, -1, axis=0)
+    edges = graph.target_edges
+    step = sp.csr_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)) + sp.identity(n)
+    chosen = []
+    for layer in np.flatnonzero(layers):
+        near = visited[layer].astype(np.float64)
+        for _ in range(rings):
+            near = step @ near
+        near = near > 0
+        entries = np.flatnonzero(near[graph.block_src] & near[graph.block_dst])
+        chosen.append(layer * graph.block_size + entries)
+    return np.unique(np.concatenate(chosen)) if chosen else np.zeros(0, dtype=np.int64)
+
+
+def repair_with_nearby_columns(
+    lazy: LazyModel,
+    columns: np.ndarray,
+    used: np.ndarray,
+    affected_layers,
+    pool,
+    options: SolverOptions,
+) -> np.ndarray | None:
+    """A closed path (n,) near a solution with detached cycles, over columns a restricted MIP lacked.
+
+    :func:`repair_detached` re-routes within the restricted MIP's columns; where those hold no
+    closed path near the solution (the path's detours around a self-intersection need columns
+    that the path reduced costs left out), this repair also frees, in the same windows of
+    layers, every column of the full model within :data:`NEARBY_RINGS` target rings of the
+    solution (:func:`nearby_columns`). Its answer is a start and an incumbent: it proves
+    nothing, and it is checked to be one closed walk; its model holds every row of the full
+    model that its columns touch, so it is feasible for the full model.
+
+    Parameters
+    ----------
+    lazy : LazyModel
+    columns : np.ndarray, shape (k,)
+        The restricted MIP's columns (sorted edge ids).
+    used : np.ndarray, shape (m,)
+        Edge ids of the solution with detached cycles.
+    affected_layers : iterable of int
+        Layers of its detached cycles (and those PES ties to them).
+    pool : spidermatch.solve.cuts.CutPool
+    options : SolverOptions
+        Its time limit is the repair's.
+
+    Returns
+    -------
+    np.ndarray, shape (n,) or None
+        The closed path as a full-model 0/1 vector, or None if none was found in time.
+
+    """
+    graph = lazy.graph
+    deadline = time.perf_counter() + options.time_limit
+    for window in REPAIR_WINDOWS:
+        left = deadline - time.perf_counter()
+        if left <= 0:
+            return None
+        near = freed_layers(affected_layers, pool.first_layer, graph.n_layers, window)
+        inside = columns[near[columns // graph.block_size]]
+        positions = np.union1d(np.union1d(used, inside), nearby_columns(graph, used, near))
+        model = lazy.compact_submodel(positions)
+        local_options = replace(options, time_limit=left)
+        local_x = _local_mip(model, graph, positions, np.arange(positions.size), pool, local_options)
+        if local_x is not None:
+            repaired = np.zeros(lazy.n_vars)
+            repaired[positions] = local_x
+            return repaired
+    return None
