@@ -9,7 +9,9 @@ its source vertex, which PES ties to it); a small MIP over those columns, with t
 :mod:`spidermatch.solve.layer_flow` in the affected layers, re-routes the path there (the
 windows also cover the layers PES ties to the freed ones, and widen once if the first try has no
 closed path). Its answer is only a start for the re-solve: it proves nothing and is checked to
-be one closed walk before it is used.
+be one closed walk before it is used. Column generation, whose restricted MIP may lack the
+columns of any closed path nearby, can also widen the repair to the full model's columns near
+the solution (:func:`repair_with_nearby_columns`).
 """
 
 from __future__ import annotations
@@ -113,19 +115,23 @@ def repair_detached(
     return None
 
 
-def _local_mip(model, graph, local_ids, positions, pool, options) -> np.ndarray | None:
-    """The repair MIP over the columns at ``positions``: a closed path (len(positions),) or None."""
+def _local_mip(model, graph, local_ids, positions, pool, options, flow_layers=None) -> np.ndarray | None:
+    """The repair MIP over the columns at ``positions``: a closed path (len(positions),) or None.
+
+    Flow rows keep the path in one piece in ``flow_layers`` (default: the pool's).
+    """
     local_options = replace(options, mip_rel_gap=max(options.mip_rel_gap, REPAIR_GAP))
     session = HighsSession(restrict_columns(model, positions), local_options, label="repair MIP")
     if pool.rows is not None:
         session.add_rows(pool.rows[:, local_ids], pool.lower, pool.upper)
-    SessionFlows(graph, local_ids, session).cover(pool.flow_layers)
+    SessionFlows(graph, local_ids, session).cover(pool.flow_layers if flow_layers is None else flow_layers)
     result = session.run()
     if result.x is None:
         logger.info("repair over %d columns: no closed path (%s)", positions.size, result.message)
         return None
     local_x = result.x[: positions.size]
     if not is_closed_path(graph, local_x, local_ids):
+        logger.info("repair over %d columns: its solution has detached cycles", positions.size)
         return None
     logger.info(
         "repair: a closed path of cost %.6g over %d columns (%.1f s)",
@@ -189,7 +195,8 @@ def repair_with_nearby_columns(
     closed path near the solution (the path's detours around a self-intersection need columns
     that the path reduced costs left out), this repair also frees, in the same windows of
     layers, every column of the full model within :data:`NEARBY_RINGS` target rings of the
-    solution (:func:`nearby_columns`). Its answer is a start and an incumbent: it proves
+    solution (:func:`nearby_columns`), with flow rows in every freed layer so that the re-routed
+    path has no detached cycle there. Its answer is a start and an incumbent: it proves
     nothing, and it is checked to be one closed walk; its model holds every row of the full
     model that its columns touch, so it is feasible for the full model.
 
@@ -223,7 +230,10 @@ def repair_with_nearby_columns(
         positions = np.union1d(np.union1d(used, inside), nearby_columns(graph, used, near))
         model = lazy.compact_submodel(positions)
         local_options = replace(options, time_limit=left)
-        local_x = _local_mip(model, graph, positions, np.arange(positions.size), pool, local_options)
+        flow_layers = pool.flow_layers | set(np.flatnonzero(near).tolist())  # no new cycle where it re-routes
+        local_x = _local_mip(
+            model, graph, positions, np.arange(positions.size), pool, local_options, flow_layers
+        )
         if local_x is not None:
             repaired = np.zeros(lazy.n_vars)
             repaired[positions] = local_x
