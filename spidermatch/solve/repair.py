@@ -99,17 +99,30 @@ def repair_detached(
     k = column_ids.size
     used = np.asarray(x_sub[:k]) > USED
     layer_of = column_ids // graph.block_size
+
+    def attempt(near: np.ndarray, local_options: SolverOptions):
+        positions = np.flatnonzero(used | near[layer_of])
+        local_x = _local_mip(model, graph, column_ids[positions], positions, pool, local_options)
+        return positions, local_x
+
+    return _in_growing_windows(attempt, affected_layers, pool, graph.n_layers, k, options)
+
+
+def _in_growing_windows(attempt, affected_layers, pool, n_layers: int, size: int, options: SolverOptions):
+    """The first closed path ``attempt(freed layers (L,), options)`` finds over ``REPAIR_WINDOWS``.
+
+    ``attempt`` returns (positions (p,), a solution over them or None); the answer is that
+    solution spread into a vector (size,), or None when no window gave one in time.
+    """
     deadline = time.perf_counter() + options.time_limit
     for window in REPAIR_WINDOWS:
         left = deadline - time.perf_counter()
         if left <= 0:
             return None
-        near = freed_layers(affected_layers, pool.first_layer, graph.n_layers, window)
-        positions = np.flatnonzero(used | near[layer_of])
-        local_options = replace(options, time_limit=left)
-        local_x = _local_mip(model, graph, column_ids[positions], positions, pool, local_options)
+        near = freed_layers(affected_layers, pool.first_layer, n_layers, window)
+        positions, local_x = attempt(near, replace(options, time_limit=left))
         if local_x is not None:
-            repaired = np.zeros(k)
+            repaired = np.zeros(size)
             repaired[positions] = local_x
             return repaired
     return None
@@ -220,22 +233,13 @@ def repair_with_nearby_columns(
 
     """
     graph = lazy.graph
-    deadline = time.perf_counter() + options.time_limit
-    for window in REPAIR_WINDOWS:
-        left = deadline - time.perf_counter()
-        if left <= 0:
-            return None
-        near = freed_layers(affected_layers, pool.first_layer, graph.n_layers, window)
+
+    def attempt(near: np.ndarray, local_options: SolverOptions):
         inside = columns[near[columns // graph.block_size]]
         positions = np.union1d(np.union1d(used, inside), nearby_columns(graph, used, near))
         model = lazy.compact_submodel(positions)
-        local_options = replace(options, time_limit=left)
         flow_layers = pool.flow_layers | set(np.flatnonzero(near).tolist())  # no new cycle where it re-routes
-        local_x = _local_mip(
-            model, graph, positions, np.arange(positions.size), pool, local_options, flow_layers
-        )
-        if local_x is not None:
-            repaired = np.zeros(lazy.n_vars)
-            repaired[positions] = local_x
-            return repaired
-    return None
+        local = np.arange(positions.size)
+        return positions, _local_mip(model, graph, positions, local, pool, local_options, flow_layers)
+
+    return _in_growing_windows(attempt, affected_layers, pool, graph.n_layers, lazy.n_vars, options)
