@@ -128,7 +128,7 @@ class MatchSettings:
     curve_matching: str = defaults.option("curve/default", "matching")
     loss: RobustLoss = field(default_factory=RobustLoss)
     constraints: tuple = tuple(defaults.option("costs/default", "constraints"))
-    solver: SolverOptions = field(default_factory=lambda: default_solver_options())
+    solver: SolverOptions = field(default_factory=default_solver_options)
     strategy: str = defaults.option("solver/default", "strategy")
     isolate_solver: bool = bool(defaults.option("solver/default", "isolate"))
     dense: DenseSettings | None = field(default_factory=DenseSettings)
