@@ -39,7 +39,9 @@ import numpy as np
 from feature_options import add_feature_options, load_pair_with_features, parse_checked
 from scipy.spatial import cKDTree
 
-from spidermatch.dense.densify import DenseSettings, certified_agreement, densify, feature_nearest_neighbours
+from spidermatch.dense.densify import certified_agreement, densify
+from spidermatch.dense.feature_search import feature_nearest_neighbours
+from spidermatch.dense.settings import DenseSettings
 from spidermatch.eval.errors import sparse_map_errors
 from spidermatch.eval.metrics import consistency, geodesic_errors, vertex_map_consistency
 from spidermatch.geometry.mesh import Mesh

@@ -17,7 +17,9 @@ from functools import partial
 import numpy as np
 
 from spidermatch import defaults
-from spidermatch.dense.densify import DenseMap, DenseSettings, densify
+from spidermatch.dense.densify import densify
+from spidermatch.dense.maps import DenseMap
+from spidermatch.dense.settings import DenseSettings
 from spidermatch.eval.quality import assess
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.partial import PairKind, covered_target, mean_edge_length

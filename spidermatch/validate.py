@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 
-from spidermatch.dense.densify import settings_problems as dense_settings_problems
+from spidermatch.dense.settings import settings_problems as dense_settings_problems
 from spidermatch.geometry.mesh import Mesh, MeshError
 from spidermatch.model.curve import MATCHINGS
 from spidermatch.values import is_finite, is_number, is_whole, show

@@ -501,7 +501,7 @@ def _sphere(subdivisions):
 
 def test_scaled_turned_and_moved_target_gets_the_same_matching(rng):
     import spidermatch
-    from spidermatch.dense.densify import DenseSettings
+    from spidermatch.dense.settings import DenseSettings
     from spidermatch.pipeline import MatchSettings
     from tests.conftest import random_rotation
 

@@ -3,13 +3,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from spidermatch.data.synthetic import creature_pair_ground_truth, make_creature
-from spidermatch.dense.densify import (
-    METHODS,
-    DenseSettings,
-    certified_agreement,
-    densify,
-    feature_nearest_neighbours,
-)
+from spidermatch.dense.densify import certified_agreement, densify
+from spidermatch.dense.feature_search import feature_nearest_neighbours
+from spidermatch.dense.settings import METHODS, DenseSettings
 from spidermatch.dense.zoomout import zoomout
 from spidermatch.eval.metrics import consistency, geodesic_errors, vertex_map_consistency
 from spidermatch.geometry.coarse import vertex_rings
@@ -123,7 +119,7 @@ def test_deformation_maps_a_shape_onto_itself_by_the_identity():
 
 
 def test_inverse_and_coverage_of_a_shape_onto_itself_and_of_a_half():
-    from spidermatch.dense.densify import DenseMap, inverse_map
+    from spidermatch.dense.maps import DenseMap, inverse_map
     from spidermatch.geometry.surface import vertex_points
     from spidermatch.report.dense_report import target_coverage
 
@@ -189,33 +185,35 @@ def test_zoomout_keeps_the_identity_of_a_shape_onto_itself():
 
 
 def test_pruned_patch_search_and_gathered_similarities_agree_with_the_full_ones(monkeypatch):
-    import spidermatch.dense.densify as dense
+    from spidermatch.dense import feature_search, interpolation
     from spidermatch.geometry.remesh import decimate
 
     source, target = make_creature(3000, seed=1).mesh.centred(), make_creature(3000, seed=2).mesh.centred()
     low_x, low_y = decimate(source, 80), decimate(target, 80)
     low_map = np.arange(low_x.mesh.n_verts) % low_y.mesh.n_verts
-    face, bary, _ = dense.interpolated_points(source, target, low_x, low_y, low_map)
-    monkeypatch.setattr(dense, "PRUNE_WIDTH", 0)  # every point takes the pruned search
-    pruned_face, pruned_bary, _ = dense.interpolated_points(source, target, low_x, low_y, low_map)
+    face, bary, _ = interpolation.interpolated_points(source, target, low_x, low_y, low_map)
+    monkeypatch.setattr(interpolation, "PRUNE_WIDTH", 0)  # every point takes the pruned search
+    pruned_face, pruned_bary, _ = interpolation.interpolated_points(source, target, low_x, low_y, low_map)
     assert np.mean(pruned_face == face) > 0.99
     rng = np.random.default_rng(0)
     fx, fy = rng.normal(size=(50, 16)), rng.normal(size=(target.n_verts, 16))
     index = rng.integers(target.n_verts, size=(50, 8))
-    multiplied = dense.candidate_similarities(fx, fy, index)
-    monkeypatch.setattr(dense, "GATHER_FACTOR", 0)
-    np.testing.assert_allclose(dense.candidate_similarities(fx, fy, index), multiplied, rtol=1e-5, atol=1e-5)
+    multiplied = feature_search.candidate_similarities(fx, fy, index)
+    monkeypatch.setattr(feature_search, "GATHER_FACTOR", 0)
+    np.testing.assert_allclose(
+        feature_search.candidate_similarities(fx, fy, index), multiplied, rtol=1e-5, atol=1e-5
+    )
 
 
 def test_pruned_search_where_every_point_lies_near_its_patches(monkeypatch):
     """The pruned search's fallback got no points when every point had a patch vertex among its
     nearest vertices and failed on them (a time-limited cat -> dog run at 500 faces, whose
     matching had collapsed onto a few target vertices)."""
-    import spidermatch.dense.densify as dense
+    from spidermatch.dense import interpolation
 
     mesh = make_creature(3000, seed=1).mesh.centred()
     low = decimate(mesh, 80)
-    monkeypatch.setattr(dense, "PRUNE_WIDTH", 0)  # every point takes the pruned search
+    monkeypatch.setattr(interpolation, "PRUNE_WIDTH", 0)  # every point takes the pruned search
     identity = np.arange(low.mesh.n_verts)
     mapped = densify(
         mesh, mesh, low, low, identity, mesh.verts, mesh.verts, DenseSettings("interp", smoothing=0)
@@ -227,7 +225,8 @@ def test_feature_search_covers_the_whole_radius_on_a_dense_target():
     """On a target much denser than n_neighbours per radius, the best match far from p is still found."""
     import trimesh
 
-    from spidermatch.dense.densify import DenseSettings, feature_refined_vertices, spread_levels
+    from spidermatch.dense.feature_search import feature_refined_vertices, spread_levels
+    from spidermatch.dense.settings import DenseSettings
     from spidermatch.geometry.mesh import Mesh
 
     sphere = trimesh.creation.icosphere(subdivisions=6)  # 40 962 vertices
@@ -246,14 +245,14 @@ def test_feature_search_covers_the_whole_radius_on_a_dense_target():
     # the plain search over the 16 vertices nearest the point stays near the point
     coarse_target = Mesh(target.verts, target.faces, "same")
     plain = settings.__class__(n_neighbours=16)
-    import spidermatch.dense.densify as dense
+    from spidermatch.dense import feature_search
 
-    original = dense.spread_levels
+    original = feature_search.spread_levels
     try:
-        dense.spread_levels = lambda target, *args: [np.arange(target.n_verts)]
+        feature_search.spread_levels = lambda target, *args: [np.arange(target.n_verts)]
         stuck = feature_refined_vertices(
             coarse_target, point, radius, source_features, target_features, plain
         )
     finally:
-        dense.spread_levels = original
+        feature_search.spread_levels = original
     assert np.linalg.norm(target.verts[stuck[0]] - goal) > 0.3

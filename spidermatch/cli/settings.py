@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from spidermatch.dense.densify import DenseSettings
+from spidermatch.dense.settings import DenseSettings
 from spidermatch.model.costs import RobustLoss
 from spidermatch.pipeline import MatchSettings
 from spidermatch.solve.strategies import strategy_for

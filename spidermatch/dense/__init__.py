@@ -6,6 +6,7 @@
 ZoomOut in :mod:`~spidermatch.dense.zoomout`.
 """
 
-from spidermatch.dense.densify import METHODS, DenseMap, DenseSettings
+from spidermatch.dense.maps import DenseMap
+from spidermatch.dense.settings import METHODS, DenseSettings
 
 __all__ = ["METHODS", "DenseMap", "DenseSettings"]

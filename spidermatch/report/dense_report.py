@@ -29,12 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spidermatch.dense.densify import (
-    DenseMap,
-    InverseMap,
-    closest_on_image_surface,
-    feature_nearest_neighbours,
-)
+from spidermatch.dense.feature_search import feature_nearest_neighbours
+from spidermatch.dense.maps import DenseMap, InverseMap, closest_on_image_surface
 from spidermatch.eval.metrics import (
     consistency,
     geodesic_errors,

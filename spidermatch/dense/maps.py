@@ -1,0 +1,109 @@
+"""A dense map in point form (:class:`DenseMap`), its inverse, and points on its image surface."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.surface import (
+    closest_triangle_points,
+    nearest_corner,
+    surface_positions,
+)
+
+
+@dataclass(frozen=True, eq=False)
+class InverseMap:
+    """A map of every target vertex onto the source, the inverse of a :class:`DenseMap`.
+
+    Attributes
+    ----------
+    vertex : np.ndarray, shape (V_Y,), int64
+        Source vertex of each target vertex.
+    face : np.ndarray, shape (V_Y,), int64
+        Source face containing each target vertex's source point.
+    bary : np.ndarray, shape (V_Y, 3)
+        Barycentric coordinates of the source point in ``face``.
+    gap : np.ndarray, shape (V_Y,)
+        Distance from each target vertex to the forward map's image surface, over
+        sqrt(target area): where it is large, no part of the source maps near the vertex.
+
+    """
+
+    vertex: np.ndarray
+    face: np.ndarray
+    bary: np.ndarray
+    gap: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class DenseMap:
+    """A map of every full-resolution source vertex onto the full-resolution target.
+
+    Attributes
+    ----------
+    vertex : np.ndarray, shape (V_X,), int64
+        Target vertex of each original source vertex: a corner of its image point's face,
+        or with ``DenseSettings.unfold`` a neighbour of one where that avoids a fold.
+    face : np.ndarray, shape (V_X,), int64
+        Target face containing each image point.
+    bary : np.ndarray, shape (V_X, 3), float64
+        Barycentric coordinates of each image point in ``face`` (rows sum to one).
+    method : str
+        The method that made it.
+    covered : np.ndarray, shape (V_Y,), bool, or None
+        For a partial source: the target vertices the map covers (the overlap); None for
+        two whole shapes, where the map covers the whole target.
+    inverse : InverseMap or None
+        Every target vertex mapped back onto the source (``DenseSettings.inverse``).
+
+    """
+
+    vertex: np.ndarray
+    face: np.ndarray
+    bary: np.ndarray
+    method: str
+    covered: np.ndarray | None = None
+    inverse: InverseMap | None = None
+
+    def points(self, target: Mesh) -> np.ndarray:
+        """3D image points on ``target``, shape (V_X, 3)."""
+        return surface_positions(target, self.face, self.bary)
+
+
+def inverse_map(dense: DenseMap, source: Mesh, target: Mesh) -> InverseMap:
+    """Every target vertex mapped back through ``dense``: its closest point on the image surface.
+
+    The image surface is the source mesh with each vertex at its image point. A target
+    vertex goes to the source point (face, barycentric coordinates) whose image is closest
+    to it, so the two maps agree: following the inverse and then the forward map moves a
+    target vertex by ``gap`` only (zero where the image surface covers it).
+    """
+    face, bary, gap = closest_on_image_surface(dense, source, target, target.verts)
+    return InverseMap(nearest_corner(source, face, bary), face, bary, gap)
+
+
+def closest_on_image_surface(
+    dense: DenseMap, source: Mesh, target: Mesh, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each point's closest point on the image surface (see :func:`inverse_map`).
+
+    Parameters
+    ----------
+    points : np.ndarray, shape (N, 3)
+        Points on or near the target.
+
+    Returns
+    -------
+    face : np.ndarray, shape (N,), int64
+        Source face.
+    bary : np.ndarray, shape (N, 3)
+    gap : np.ndarray, shape (N,)
+        Distance to the image surface over sqrt(target area).
+    """
+    images = dense.points(target)
+    face, bary = closest_triangle_points(images, source.faces, points)
+    closest = np.einsum("nk,nkd->nd", bary, images[source.faces[face]])
+    return face, bary, np.linalg.norm(closest - points, axis=1) / np.sqrt(target.area)
