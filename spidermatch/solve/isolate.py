@@ -85,7 +85,7 @@ class KnownFigures:
         return better
 
     def as_dict(self) -> dict:
-        """JSON-ready figures for ``result.json``, named as in ``interrupted_figures`` (:mod:`highs`)."""
+        """JSON-ready figures for ``result.json``, named as in ``solve.types.interrupted_figures``."""
         gap = relative_gap(self.incumbent, self.bound)
         return {
             "incumbent_objective": self.incumbent if math.isfinite(self.incumbent) else None,
