@@ -326,15 +326,10 @@ def recognised_pair(source: Mesh, target: Mesh, partial: str) -> PairKind:
 
 def _settings(base, feature_name: str, resolution, time_limit, mip_rel_gap, strategy):
     from spidermatch.pipeline import MatchSettings
-    from spidermatch.solve.strategies import AUTO, strategy_for
-    from spidermatch.solve.types import SolverOptions
+    from spidermatch.solve.strategies import strategy_for
 
-    if base is None:
-        base = MatchSettings(
-            resolution=default_resolution(feature_name),
-            solver=SolverOptions(time_limit=DEFAULT_TIME_LIMIT),
-            strategy=AUTO,
-        )
+    if base is None:  # MatchSettings() holds conf/'s defaults: strategy auto, DEFAULT_TIME_LIMIT
+        base = MatchSettings(resolution=default_resolution(feature_name))
     solver = base.solver  # values pass unconverted: pipeline.match checks them (no silent int(150.9))
     if time_limit is not None:
         solver = dataclasses.replace(solver, time_limit=time_limit)

@@ -21,7 +21,7 @@ from spidermatch.model.product_graph import ProductGraph
 from spidermatch.model.solution import used_columns
 from spidermatch.solve.connectivity import (
     connectivity_cuts,
-    detached_components,
+    detached_components_of_edges,
     is_closed_path,
     two_cycle_components,
 )
@@ -201,16 +201,16 @@ def solve_with_cuts(
     # connectivity cuts are valid for closed paths, which only flow conservation (CON) makes
     max_rounds = MAX_CUT_ROUNDS if imposes_paths(sub) else 0
     for round_number in range(1, max_rounds + 1):
-        x = expand(result.x, columns, n_vars)
-        if x is None:
+        if result.x is None:
             break
-        components = detached_components(graph, x)
+        used = column_ids[used_columns(result.x[: column_ids.size])]  # full-model edge ids
+        components = detached_components_of_edges(graph, used)
         if not components:
             break
         rows, lower, upper = connectivity_cuts(graph, components)
         pool.add(rows, lower, upper)  # for this session's next run and for later solves
         affected = pool.note_detached(graph, components)
-        pool.note_detached_solution(used_columns(x), result.objective, affected)
+        pool.note_detached_solution(used, result.objective, affected)
         left = remaining(options, start)
         if left.time_limit <= 0:
             return _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds)
