@@ -339,10 +339,11 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         # both are valid lower bounds for the full model (L(y) alone may already be close enough)
         bound = max(lp.bound, min(result.bound, outside))
         proven_here = result.status == "optimal" and outside >= result.bound  # the MIP's proof covers all
-        if not proven_here:  # a cheaper solution cut off for detached cycles: re-route it
-            result = _with_nearby_repair(lazy, columns, pool, result, remaining(options, start))
-        incumbent = result.x
         certified = proven_here or relative_gap(result.objective, bound) <= options.mip_rel_gap
+        if not certified:  # a cheaper solution cut off for detached cycles: re-route it
+            result = _with_nearby_repair(lazy, columns, pool, result, remaining(options, start))
+            certified = relative_gap(result.objective, bound) <= options.mip_rel_gap
+        incumbent = result.x
         best = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
         report_known(result.objective, bound, used_columns(incumbent))
         logger.info(
