@@ -183,15 +183,13 @@ def nearby_columns(graph: ProductGraph, used: np.ndarray, layers: np.ndarray, ri
     visited |= np.roll(visited, 1, axis=0) | np.roll(visited, -1, axis=0)
     edges = graph.target_edges
     step = sp.csr_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)) + sp.identity(n)
-    chosen = []
-    for layer in np.flatnonzero(layers):
-        near = visited[layer].astype(np.float64)
-        for _ in range(rings):
-            near = step @ near
-        near = near > 0
-        entries = np.flatnonzero(near[graph.block_src] & near[graph.block_dst])
-        chosen.append(layer * graph.block_size + entries)
-    return np.unique(np.concatenate(chosen)) if chosen else np.zeros(0, dtype=np.int64)
+    chosen = np.flatnonzero(layers)
+    reach = visited[chosen].T.astype(np.float64)  # (V_Y, k): one column per chosen layer
+    for _ in range(rings):
+        reach = step @ reach
+    near = reach.T > 0
+    rows, entries = np.nonzero(near[:, graph.block_src] & near[:, graph.block_dst])
+    return chosen[rows].astype(np.int64) * graph.block_size + entries  # ascending: rows, then entries
 
 
 def repair_with_nearby_columns(
