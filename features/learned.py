@@ -298,19 +298,46 @@ class LearnedExtractor:
         if self.adapt_steps:
             logger.warning("%s: test-time adaptation skipped for a partial source", part.name)
         feat_whole = self._features(self.network, whole)
-        shape = prepare_shape(part, self.config, use_cache=self.use_cache, scale_area=whole.area)
+        return self._part_onto(part, feat_whole, whole.verts, whole.area), feat_whole
+
+    def parts_features(self, part_x: Mesh, part_y: Mesh) -> tuple[np.ndarray, np.ndarray]:
+        """Descriptors of two parts of one surface (partial-to-partial), in one unit of length.
+
+        Neither area is the whole's, so both are measured in the larger part's sqrt(area)
+        (the smaller one would inflate the coordinates more). The target is presented as it
+        is given, the frame both share; with an orientation search, the source is turned as
+        a part onto it (:meth:`part_features`). No test-time adaptation (its loss compares
+        two whole shapes).
+
+        Returns
+        -------
+        feat_x : np.ndarray, shape (V_x, C_out)
+        feat_y : np.ndarray, shape (V_y, C_out)
+
+        """
+        self._check_size(part_x, part_y)
+        if self.adapt_steps:
+            logger.warning("%s: test-time adaptation skipped for two partial shapes", part_x.name)
+        unit_area = max(part_x.area, part_y.area)
+        shape_y = prepare_shape(part_y, self.config, use_cache=self.use_cache, scale_area=unit_area)
+        with torch.no_grad():
+            feat_y = normalise_rows(self.network(shape_y.features, shape_y.ops).double().numpy())
+        return self._part_onto(part_x, feat_y, part_y.verts, unit_area), feat_y
+
+    def _part_onto(self, part: Mesh, feat_other: np.ndarray, other_verts: np.ndarray, unit_area: float):
+        """Descriptors (V_part, C_out) of ``part`` in ``unit_area``'s unit, turned onto the other shape."""
+        shape = prepare_shape(part, self.config, use_cache=self.use_cache, scale_area=unit_area)
         if self.orientation is not None:
-            probe = probe_input(part, self.config, self.train_faces, self.use_cache, scale_area=whole.area)
+            probe = probe_input(part, self.config, self.train_faces, self.use_cache, scale_area=unit_area)
             chosen = self.orientation.best_for_part(
-                self.network, probe, torch.from_numpy(feat_whole).float(), whole.verts / np.sqrt(whole.area)
+                self.network, probe, torch.from_numpy(feat_other).float(), other_verts / np.sqrt(unit_area)
             )
             self.orientations[part.name] = chosen
             if chosen.degrees != 0.0:
                 logger.info("%s: input %s (orientation search for a part)", part.name, chosen.describe())
             shape = rotated_input(shape, chosen.rotation)
         with torch.no_grad():
-            feat_part = self.network(shape.features, shape.ops)
-        return normalise_rows(feat_part.double().numpy()), feat_whole
+            return normalise_rows(self.network(shape.features, shape.ops).double().numpy())
 
     def adapt(self, mesh_x: Mesh, mesh_y: Mesh) -> DiffusionNet:
         """A copy of the network fine-tuned for ``adapt_steps`` Adam steps on this pair."""

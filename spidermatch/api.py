@@ -26,7 +26,8 @@ from spidermatch import defaults
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
 from spidermatch.feature_transfer import pair_features as capped_pair_features
 from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
-from spidermatch.geometry.partial import PairKind, announce_pair, pair_kind
+from spidermatch.geometry.overlap import estimated_overlap, overlap_part
+from spidermatch.geometry.partial import PairKind, PartialShape, announce_pair, overlap_kind, pair_kind
 from spidermatch.model_size import check_meshes_fit
 from spidermatch.validate import check_settings, feature_cap_problem, raise_problems
 
@@ -65,9 +66,11 @@ class Matching:
         the solver certified. None when the solver found no matching.
     dense_map : np.ndarray, shape (V_src,), int64, or None
         Target vertex for every vertex of the full-resolution source (``src_to_tgt``); None when
-        the dense map is turned off or there is no matching. ``p2p`` is the same array.
+        the dense map is turned off or there is no matching. ``p2p`` is the same array. With
+        ``partial="both"``, -1 for the source vertices outside ``source_overlap``.
     dense : spidermatch.dense.densify.DenseMap or None
-        The dense map in point-on-surface form (target face and barycentric coordinates).
+        The dense map in point-on-surface form (target face and barycentric coordinates); with
+        ``partial="both"``, of the overlap's vertices (``details.source``), in their order.
     status : str
         "optimal" (certified within ``mip_rel_gap``), "feasible" (stopped early with a
         matching that is not proven optimal), "infeasible", "no_solution" or "error".
@@ -81,7 +84,11 @@ class Matching:
     timings : dict of str to float
         Seconds per stage ("features", "decimate", "curve", "costs", "build", "solve", "check").
     details : spidermatch.pipeline.MatchResult
-        Everything else: the decimated meshes, the SpiderCurve, the solver's full report.
+        Everything else: the decimated meshes, the SpiderCurve, the solver's full report
+        (with ``partial="both"``, of the matched overlap piece of the source).
+    source_overlap : np.ndarray, shape (V_src,), bool, or None
+        ``partial="both"``: the source vertices estimated to have a partner on the target
+        (the piece that was matched); None in the other modes, where every source vertex has one.
 
     """
 
@@ -95,6 +102,7 @@ class Matching:
     features: str
     timings: dict = field(default_factory=dict)
     details: object = field(default=None, repr=False)
+    source_overlap: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def dense(self):
@@ -173,7 +181,9 @@ def pair_features(
     source: Mesh,
     target: Mesh,
     max_vertices: int | None = MAX_FEATURE_VERTICES,
+    *,
     partial: bool = False,
+    overlap: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, str]:
     """Features of both meshes (centred) and their name, from ``features`` as :func:`match` takes it.
 
@@ -189,6 +199,9 @@ def pair_features(
     partial : bool
         The source is a part of the target (an extractor with ``part_features`` measures it in
         the target's unit).
+    overlap : bool
+        Both are parts of one surface (an extractor with ``parts_features`` measures both in
+        one unit).
 
     Returns
     -------
@@ -207,7 +220,9 @@ def pair_features(
             f"or a pair of (V, D) arrays, got {type(features).__name__}"
         )
     name = str(getattr(features, "name", type(features).__name__))
-    feat_x, feat_y = capped_pair_features(features, source, target, max_vertices, partial=partial)
+    feat_x, feat_y = capped_pair_features(
+        features, source, target, max_vertices, partial=partial, overlap=overlap
+    )
     return feat_x, feat_y, name
 
 
@@ -270,7 +285,10 @@ def match(
     partial : str
         "auto": a source with boundary loops the target lacks and a smaller area is matched
         as a part of the target (:func:`spidermatch.geometry.partial.pair_kind`; the reason is
-        logged and kept in ``details.pair``); "off": always as two whole shapes.
+        logged and kept in ``details.pair``); "off": always as two whole shapes; "both": the
+        meshes are two parts of one surface in one unit: the source region that overlaps the
+        target is estimated (:mod:`spidermatch.geometry.overlap`) and only it is matched, as a
+        part of the target (``source_overlap``; ``dense_map`` is -1 elsewhere).
 
     Returns
     -------
@@ -291,20 +309,75 @@ def match(
     check_meshes_fit((source_mesh.n_verts, target_mesh.n_verts), dense_planned)
     kind = recognised_pair(source_mesh, target_mesh, partial)
     started = time.perf_counter()
+    overlap = kind.mode == "overlap"
     feat_x, feat_y, name = pair_features(
-        features, source_mesh, target_mesh, features_max_vertices or None, kind.mode == "partial"
+        features,
+        source_mesh,
+        target_mesh,
+        features_max_vertices or None,
+        partial=kind.mode == "partial",
+        overlap=overlap,
     )
     feature_time = time.perf_counter() - started
     if name == "wks":
         logger.info("features: WKS. %s", BETTER_FEATURES_HINT)
     run_settings = _settings(settings, name, resolution, time_limit, mip_rel_gap, strategy)
-    run_settings = dataclasses.replace(run_settings, partial=kind.mode == "partial")
+    run_settings = dataclasses.replace(run_settings, partial=kind.mode != "whole")
     check_settings(run_settings, solver_prefix="")  # messages name the keywords: time_limit=, not solver.
-    result = run_pipeline(source_mesh, target_mesh, feat_x, feat_y, run_settings)
+    piece = None
+    if overlap:  # only the source region with a partner is matched, as a part of the target
+        piece = source_overlap_piece(source_mesh, target_mesh, feat_x, feat_y)
+        feat_x = feat_x[piece.to_original]
+    matched_source = source_mesh if piece is None else piece.mesh
+    result = run_pipeline(matched_source, target_mesh, feat_x, feat_y, run_settings)
     result.pair = kind
     if strict:
         result.raise_for_status()
-    return _matching(result, name, run_settings.resolution, {"features": feature_time, **result.timings})
+    matching = _matching(result, name, run_settings.resolution, {"features": feature_time, **result.timings})
+    return matching if piece is None else on_whole_source(matching, piece, source_mesh.n_verts)
+
+
+def source_overlap_piece(source: Mesh, target: Mesh, feat_x: np.ndarray, feat_y: np.ndarray) -> PartialShape:
+    """The piece of ``source`` estimated to overlap ``target`` (two parts of one surface, one unit).
+
+    Raises
+    ------
+    MeshError
+        No overlap found.
+
+    """
+    from spidermatch.model.costs import unit_rows
+
+    unit_length = float(np.sqrt(max(source.area, target.area)))
+    region = estimated_overlap(source, target, unit_rows(feat_x), unit_rows(feat_y), unit_length)
+    piece = overlap_part(source, region)
+    logger.info(
+        "%s: matching its overlap with %s, %d of %d vertices (%.0f %% of its area)",
+        source.name,
+        target.name,
+        piece.mesh.n_verts,
+        source.n_verts,
+        100 * piece.kept_area,
+    )
+    return piece
+
+
+def on_whole_source(matching: Matching, piece: PartialShape, n_source: int) -> Matching:
+    """``matching`` of the overlap ``piece`` told in the whole source's vertex indices.
+
+    ``matches`` name the source's own vertices; ``dense_map`` has one entry per source vertex,
+    -1 outside the overlap; ``source_overlap`` marks the piece.
+    """
+    inside = np.zeros(n_source, dtype=bool)
+    inside[piece.to_original] = True
+    matches = matching.matches
+    if matches is not None:
+        matches = np.column_stack([piece.to_original[matches[:, 0]], matches[:, 1]])
+    dense_map = matching.dense_map
+    if dense_map is not None:
+        dense_map = np.full(n_source, -1, dtype=np.int64)
+        dense_map[piece.to_original] = matching.dense_map
+    return dataclasses.replace(matching, matches=matches, dense_map=dense_map, source_overlap=inside)
 
 
 def recognised_pair(source: Mesh, target: Mesh, partial: str) -> PairKind:
@@ -313,8 +386,12 @@ def recognised_pair(source: Mesh, target: Mesh, partial: str) -> PairKind:
     Meshes of different topology that no partial mode explains are matched as two whole
     shapes, with the reason as a warning (the API has never refused them).
     """
-    if partial not in ("auto", "off"):
-        raise ValueError(f"partial={partial!r}: choose 'auto' or 'off'")
+    if partial not in ("auto", "off", "both"):
+        raise ValueError(f"partial={partial!r}: choose 'auto', 'off' or 'both'")
+    if partial == "both":
+        kind = overlap_kind(source, target)
+        announce_pair(kind)
+        return kind
     try:
         kind = pair_kind(source, target, partial=partial == "auto")
     except MeshError as error:

@@ -40,7 +40,9 @@ def pair_features(
     target: Mesh,
     max_vertices: int | None = MAX_FEATURE_VERTICES,
     record: dict | None = None,
+    *,
     partial: bool = False,
+    overlap: bool = False,
 ):
     """Features of both meshes, centred, each computed on at most ``max_vertices`` vertices.
 
@@ -57,6 +59,9 @@ def pair_features(
     partial : bool
         The source is a part of the target: an extractor with ``part_features(part, whole)``
         is given both meshes at once (the part measured in the whole's unit).
+    overlap : bool
+        Both meshes are parts of one surface: an extractor with ``parts_features(x, y)`` is
+        given both at once (in one unit of length).
 
     Returns
     -------
@@ -64,7 +69,7 @@ def pair_features(
     target_features : np.ndarray, shape (V_tgt, D)
 
     """
-    method = "part_features" if partial else "pair_features"
+    method = "parts_features" if overlap else "part_features" if partial else "pair_features"
     if not hasattr(extractor, method):
         return tuple(mesh_features(extractor, mesh, max_vertices, record) for mesh in (source, target))
     centred = [mesh.centred() for mesh in (source, target)]

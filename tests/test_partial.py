@@ -186,3 +186,106 @@ def test_a_source_with_a_hole_is_matched_without_options(tmp_path, creature):
     assert 0.5 < result["overlap"]["target_covered_area"] <= 1.0
     with np.load(out / "dense_map.npz") as dense:
         assert dense["target_covered"].shape == (load_mesh(tmp_path / "whole.off").n_verts,)
+
+
+def _smooth_position_code(verts: np.ndarray, dims: int = 64, seed: int = 0) -> np.ndarray:
+    """Descriptors (V, dims) whose cosine similarity falls off smoothly with 3-D distance."""
+    rng = np.random.default_rng(seed)
+    scale = np.sqrt(np.ptp(verts, axis=0).prod() ** (2 / 3))
+    frequencies = rng.normal(size=(3, dims)) * 6.0 / scale
+    return np.cos(verts @ frequencies + rng.uniform(0, 2 * np.pi, dims))
+
+
+def test_two_overlapping_parts_are_matched_on_their_overlap_only(creature):
+    """Two cuts of one shape from opposite sides share a band: only it is matched, by the identity."""
+    normal = np.array([0.0, 1.0, 0.3])
+    lower = plane_cut(creature, normal, 0.65, "lower")
+    upper = plane_cut(creature, -normal, 0.65, "upper")
+    code = _smooth_position_code(creature.verts)
+    result = spidermatch.match(
+        lower.mesh,
+        upper.mesh,
+        features=(code[lower.to_original], code[upper.to_original]),
+        resolution=300,
+        time_limit=600,
+        partial="both",
+    )
+    assert result.details.pair.mode == "overlap" and result.status == "optimal"
+    in_upper = np.zeros(creature.n_verts, dtype=bool)
+    in_upper[upper.to_original] = True
+    truth = in_upper[lower.to_original]
+    found = result.source_overlap
+    areas = lower.mesh.vertex_areas
+    assert areas[found & truth].sum() / areas[found | truth].sum() > 0.65  # the whole part scores 0.51
+    assert np.all((result.dense_map >= 0) == found)
+    assert np.all(found[result.matches[:, 0]])
+    both = found & truth  # a vertex without partner has no right image
+    images = upper.mesh.verts[result.dense_map[both]]
+    dense_error = np.linalg.norm(images - lower.mesh.verts[both], axis=1)
+    assert np.mean(dense_error) < 0.5 * mean_edge_length(creature)
+
+
+def test_partial_both_accepts_only_its_three_names(creature):
+    with pytest.raises(ValueError, match="'auto', 'off' or 'both'"):
+        spidermatch.match(creature, creature, partial="overlap")
+
+
+def test_the_command_line_names_where_partial_both_is_available(tmp_path, creature):
+    save_mesh(creature, tmp_path / "a.off")
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        cfg = compose(
+            config_name="match",
+            overrides=[f"source={tmp_path / 'a.off'}", f"target={tmp_path / 'a.off'}", "partial=both"],
+        )
+    out = tmp_path / "run"
+    assert run_match(cfg, out) != 0
+    result = json.loads((out / "result.json").read_text())
+    assert "Python API" in result["error"]
+
+
+class _RecordingExtractor:
+    """Features that say which of an extractor's methods the API called (the methods differ in units)."""
+
+    def __init__(self, creature):
+        self.calls = []
+        self.code = _smooth_position_code(creature.verts)
+        self.creature = creature
+
+    def _for(self, mesh):
+        nearest = np.argmin(((mesh.verts[:, None] - self.creature.centred().verts[None]) ** 2).sum(2), axis=1)
+        return self.code[nearest]
+
+    def __call__(self, mesh):
+        self.calls.append("single")
+        return self._for(mesh)
+
+    def pair_features(self, x, y):
+        self.calls.append("pair_features")
+        return self._for(x), self._for(y)
+
+    def part_features(self, part, whole):
+        self.calls.append("part_features")
+        return self._for(part), self._for(whole)
+
+    def parts_features(self, x, y):
+        self.calls.append("parts_features")
+        return self._for(x), self._for(y)
+
+
+@pytest.mark.parametrize(
+    ("partial", "expected"), [("auto", "part_features"), ("off", "pair_features"), ("both", "parts_features")]
+)
+def test_each_partial_mode_asks_the_extractor_for_its_own_features(creature, partial, expected):
+    part = plane_cut(creature, np.array([0.0, 1.0, 0.3]), 0.6, "part")
+    extractor = _RecordingExtractor(creature)
+    settings = spidermatch.MatchSettings(dense=None)
+    spidermatch.match(
+        part.mesh,
+        creature,
+        features=extractor,
+        resolution=150,
+        partial=partial,
+        strict=False,
+        settings=settings,
+    )
+    assert extractor.calls == [expected]

@@ -52,6 +52,7 @@ MATCHING_FIELDS = [
     "features",
     "timings",
     "details",
+    "source_overlap",  # added with partial="both": a new field at the end keeps positional use working
 ]
 
 

@@ -45,7 +45,12 @@ class FeatureMemo:
         if depends_on_pair:
             capped = {}
             features = pair_features(
-                self.extractor, inputs.source, inputs.target, self.max_vertices, capped, inputs.partial
+                self.extractor,
+                inputs.source,
+                inputs.target,
+                self.max_vertices,
+                capped,
+                partial=inputs.partial,
             )
             return *features, self.name, feature_details(self.extractor, capped)
         (feat_x, details_x), (feat_y, details_y) = (

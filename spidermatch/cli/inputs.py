@@ -102,6 +102,12 @@ def checked_pair_kind(cfg, inputs: MatchInputs, report: dict) -> PairKind:
     refusal as a warning.
     """
     option = cfg.get("partial", "auto")
+    if option == "both":
+        raise OptionError(
+            "partial=both (two incomplete scans, the overlap unknown) is in the Python API only so far: "
+            "spidermatch.match(source, target, partial='both'); the command line matches a part onto a "
+            "whole (partial=auto)"
+        )
     if option not in PARTIAL_OPTIONS:
         raise OptionError(f"partial={option!r}: choose from {', '.join(PARTIAL_OPTIONS)}")
     try:
@@ -193,7 +199,7 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
         logger.info("features: WKS (no trained checkpoint given). %s", BETTER_FEATURES_HINT)
     capped = {}
     feat_x, feat_y = pair_features(
-        extractor, inputs.source, inputs.target, feature_cap(cfg), capped, inputs.partial
+        extractor, inputs.source, inputs.target, feature_cap(cfg), capped, partial=inputs.partial
     )
     return feat_x, feat_y, name, feature_details(extractor, capped)
 

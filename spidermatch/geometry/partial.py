@@ -252,9 +252,10 @@ class PairKind:
     Attributes
     ----------
     mode : str
-        "whole" (both surfaces complete, or of the same topology) or "partial" (the source
+        "whole" (both surfaces complete, or of the same topology), "partial" (the source
         is a part of the target: it is measured in the target's unit of length, and the
-        target keeps a region without partner).
+        target keeps a region without partner) or "overlap" (both are parts of one surface:
+        each keeps a region without partner, :func:`overlap_kind`).
     reason : str
         Why, in one sentence for the log and ``result.json``.
     area_ratio : float
@@ -278,8 +279,8 @@ INCOMPLETE_TARGET = (
 
 def announce_pair(kind: PairKind) -> None:
     """Log how a pair is matched: the partial mode's reason, and any caution as a warning."""
-    if kind.mode == "partial":
-        logger.info("partial mode: %s", kind.reason)
+    if kind.mode in ("partial", "overlap"):
+        logger.info("%s mode: %s", kind.mode, kind.reason)
     if kind.caution:
         logger.warning("%s", kind.caution)
 
@@ -342,6 +343,29 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
     )
 
 
+def overlap_kind(source: Mesh, target: Mesh) -> PairKind:
+    """The pair as two parts of one surface (``partial=both``): the overlap is estimated, not assumed.
+
+    Topology cannot tell two parts of one surface from a part and its whole, so this mode is
+    the user's choice; a mesh without boundary loops is still accepted (its overlap may be
+    all of it) with a caution.
+    """
+    top_x, top_y = topology(source), topology(target)
+    ratio = source.area / target.area
+    reason = (
+        f"partial=both: {source.name} ({top_x}) and {target.name} ({top_y}) are matched as two parts "
+        "of one surface in one unit; only the source region estimated to overlap the target is matched"
+    )
+    whole = [mesh.name for mesh, top in ((source, top_x), (target, top_y)) if top.boundaries == 0]
+    caution = ""
+    if whole:
+        caution = (
+            f"{' and '.join(whole)} has no boundary loop, so looks complete: a part against a whole "
+            "is matched more surely with partial=auto (the part as the source)"
+        )
+    return PairKind("overlap", reason, ratio, caution)
+
+
 def covered_target(
     target: Mesh, image_points: np.ndarray, source_edge: float, closing_rings: int = 2
 ) -> np.ndarray:
@@ -371,19 +395,22 @@ def covered_target(
     -------
     np.ndarray, shape (V_Y,), bool
     """
-    edges = target.edges
-    ends = edges.reshape(-1)
     radius = 0.5 * np.maximum(mean_incident_edge_length(target), source_edge)
     distance, _ = cKDTree(np.asarray(image_points, dtype=float)).query(
         target.verts, distance_upper_bound=radius.max()
     )
-    adjacency = sp.coo_matrix(
-        (np.ones(2 * len(edges)), (ends, edges[:, ::-1].reshape(-1))), shape=(target.n_verts,) * 2
+    return closed_region(distance <= radius, edge_adjacency(target), closing_rings)
+
+
+def edge_adjacency(mesh: Mesh) -> sp.csr_matrix:
+    """The mesh's edge graph as a symmetric (V, V) matrix of ones."""
+    edges = mesh.edges
+    return sp.coo_matrix(
+        (np.ones(2 * len(edges)), (edges.reshape(-1), edges[:, ::-1].reshape(-1))), shape=(mesh.n_verts,) * 2
     ).tocsr()
-    return _closed(distance <= radius, adjacency, closing_rings)
 
 
-def _closed(region: np.ndarray, adjacency: sp.csr_matrix, rings: int) -> np.ndarray:
+def closed_region(region: np.ndarray, adjacency: sp.csr_matrix, rings: int) -> np.ndarray:
     """Morphological closing (V,) bool of a vertex set on a graph: ``rings`` dilations, then erosions."""
     grown = region.copy()
     for _ in range(rings):

@@ -1,0 +1,152 @@
+"""Where two incomplete scans of one surface overlap: the source region that has a partner.
+
+When both meshes are parts (partial-to-partial matching), some of the source has no partner
+on the target, and a SpiderCurve through all of the source would have to map that region
+somewhere. The region with a partner is estimated before the solve from the descriptors
+alone, by **cycle consistency**: a source vertex x whose most similar target vertex y has,
+as its own most similar source vertex, a vertex near x again is taken to be in the overlap.
+Outside the overlap a vertex's best match is merely the least bad one, and the way back
+lands elsewhere. Single vertices are noisy both ways, so each vertex takes the
+area-weighted share of consistent vertices in a ball around it, and the overlap is where
+that share reaches :data:`MIN_CONSISTENT_SHARE`; gaps narrower than about twice
+:data:`CLOSING_RADIUS` are then closed on the mesh's edge graph (a part of a scan's
+noisy estimate breaks into islands otherwise). The certified matching then maps the
+largest clean piece of this region (:func:`overlap_part`) as a part of the target.
+Measurements: ``docs/partial.md``, "Partial-to-partial".
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from spidermatch.geometry.mesh import Mesh, MeshError
+from spidermatch.geometry.partial import PartialShape, closed_region, edge_adjacency, kept_part
+
+logger = logging.getLogger(__name__)
+
+RETURN_RADIUS = 0.05
+"""A vertex is consistent when the way back lands this close (in the shared unit of length)."""
+
+SMOOTHING_RADIUS = 0.1
+"""Radius (in the shared unit of length) of the ball whose consistent share each vertex takes."""
+
+MIN_CONSISTENT_SHARE = 0.4
+"""Least area-weighted share of consistent vertices in the ball for a vertex to be in the overlap."""
+
+CLOSING_RADIUS = 0.06
+"""Gaps in the estimate narrower than about twice this (in the shared unit of length) are filled."""
+
+SAMPLE_CAP = 6000
+"""Vertices per mesh the cycle test is run on (evenly drawn); the rest take their nearest sample's answer."""
+
+BLOCK_ROWS = 1024
+"""Source rows of the similarity matrix computed at once."""
+
+LEAST_OVERLAP = 0.05
+"""Smallest share of the source's area an overlap may have (below it, the pair is refused)."""
+
+
+def estimated_overlap(
+    source: Mesh,
+    target: Mesh,
+    source_unit: np.ndarray,
+    target_unit: np.ndarray,
+    unit_length: float,
+) -> np.ndarray:
+    """Source vertices estimated to have a partner on the target, by cycle consistency of the descriptors.
+
+    Parameters
+    ----------
+    source, target : Mesh
+        V_X and V_Y vertices, in one unit of length.
+    source_unit : np.ndarray, shape (V_X, D)
+    target_unit : np.ndarray, shape (V_Y, D)
+        L2-normalised descriptors (cosine similarity is their dot product).
+    unit_length : float
+        The pair's unit of length (e.g. sqrt of the larger area); the radii are in it.
+
+    Returns
+    -------
+    np.ndarray, shape (V_X,), bool
+
+    """
+    rows_x, rows_y = _spread_sample(source.n_verts), _spread_sample(target.n_verts)
+    points = source.verts[rows_x]
+    forward, backward = _mutual_best(source_unit[rows_x], target_unit[rows_y])
+    returned = points[backward[forward]]
+    consistent = np.linalg.norm(returned - points, axis=1) <= RETURN_RADIUS * unit_length
+    weights = _sample_weights(source, rows_x)
+    share = _ball_share(points, consistent, weights, SMOOTHING_RADIUS * unit_length)
+    in_sample = share >= MIN_CONSISTENT_SHARE
+    nearest = cKDTree(points).query(source.verts)[1]
+    rings = int(np.ceil(CLOSING_RADIUS * unit_length / source.edge_lengths.mean()))
+    region = closed_region(in_sample[nearest], edge_adjacency(source), rings)
+    logger.info(
+        "overlap estimate: %.0f %% of %s's samples return to themselves, %.0f %% of its area kept",
+        100 * consistent.mean(),
+        source.name,
+        100 * source.vertex_areas[region].sum() / source.area,
+    )
+    return region
+
+
+def overlap_part(source: Mesh, overlap: np.ndarray) -> PartialShape:
+    """The largest clean piece of ``source`` whose faces lie in ``overlap`` (V_X,) bool.
+
+    Raises
+    ------
+    MeshError
+        The overlap is (nearly) empty: nothing of the source seems to have a partner.
+
+    """
+    keep_faces = np.asarray(overlap, dtype=bool)[source.faces].all(axis=1)
+    share = source.face_areas[keep_faces].sum() / source.area if keep_faces.any() else 0.0
+    if share < LEAST_OVERLAP:
+        raise MeshError(
+            f"{source.name}: no overlap with the target found ({100 * share:.1f} % of its area has "
+            "descriptors that match back to themselves); check that both scans show one surface in one unit"
+        )
+    return kept_part(source, keep_faces, f"{source.name}-overlap", "overlap")
+
+
+def _spread_sample(n: int) -> np.ndarray:
+    """At most :data:`SAMPLE_CAP` indices evenly spread over ``range(n)`` (all of them when fewer)."""
+    if n <= SAMPLE_CAP:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, SAMPLE_CAP).round().astype(np.int64))
+
+
+def _mutual_best(source_unit: np.ndarray, target_unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Most similar target row of each source row (N_X,) and source row of each target row (N_Y,)."""
+    targets = np.ascontiguousarray(target_unit, dtype=np.float32)
+    forward = np.empty(len(source_unit), dtype=np.int64)
+    best_value = np.full(len(targets), -np.inf, dtype=np.float32)
+    backward = np.zeros(len(targets), dtype=np.int64)
+    for start in range(0, len(source_unit), BLOCK_ROWS):
+        block = np.asarray(source_unit[start : start + BLOCK_ROWS], dtype=np.float32) @ targets.T
+        forward[start : start + len(block)] = block.argmax(axis=1)
+        column_best = block.argmax(axis=0)
+        column_value = block[column_best, np.arange(len(targets))]
+        better = column_value > best_value
+        best_value[better] = column_value[better]
+        backward[better] = start + column_best[better]
+    return forward, backward
+
+
+def _sample_weights(mesh: Mesh, rows: np.ndarray) -> np.ndarray:
+    """Area each sampled vertex stands for: the vertex areas of the vertices nearest to it."""
+    nearest = cKDTree(mesh.verts[rows]).query(mesh.verts)[1]
+    return np.bincount(nearest, weights=mesh.vertex_areas, minlength=len(rows))
+
+
+def _ball_share(points: np.ndarray, flags: np.ndarray, weights: np.ndarray, radius: float) -> np.ndarray:
+    """Weighted share of flagged points within ``radius`` of each point, shape (N,)."""
+    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
+    heads = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(len(points))])
+    tails = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(len(points))])
+    total = np.bincount(heads, weights=weights[tails], minlength=len(points))
+    flagged = np.bincount(heads, weights=(weights * flags)[tails], minlength=len(points))
+    return flagged / np.maximum(total, np.finfo(float).tiny)
