@@ -1,4 +1,4 @@
-"""Partial-to-full matching: parts of FAUST_r-style shapes (bench/make_partial.py) against whole ones.
+"""Partial matching: parts of FAUST_r-style shapes (bench/make_partial.py) against whole ones or other parts.
 
 For every listed pair (a, b) and every part of a (plane cut, holes, single view) the part is
 matched to b, and every part of b to a, through the Python API as a user calls it. Per run:
@@ -9,7 +9,15 @@ says it covers with the region that truly corresponds to the part (each target v
 the answer of its nearest reference point).
 
 ``--mode whole`` runs today's forced full-shape matching (``partial="off"``: the part
-measured in its own unit, features as for a whole shape) on the same pairs, for comparison::
+measured in its own unit, features as for a whole shape) on the same pairs, for comparison.
+
+``--mode both`` is partial-to-partial (``partial="both"``): each part of a against each part of
+b, kept when each part truly shares at least ``--min-overlap`` of its area with the other (a
+reference point is shared when both parts kept it). Per run also: ``source_iou``, the IoU of
+the estimated source overlap (``Matching.source_overlap``) with the true one;
+``overlap_mapped``, the share of the shared reference points the map reaches (the rest fell
+outside the estimate); ``dense_error`` over those, on the whole target shape; ``iou`` of the
+covered target region with the target's true overlap::
 
     .venv/bin/python bench/bench_partial.py --data ../shared/data/FAUST_r --parts runs/partial_faust \\
         --pairs bench/faust_val_pairs.txt --checkpoint ../runs/faust_unsup_partial_seed0/best.pt \\
@@ -39,6 +47,7 @@ from spidermatch.geometry.io import load_mesh
 from spidermatch.geometry.mesh import Mesh
 
 COLUMNS = ("part", "target", "kept_area", "mode", "status", "gap", "solve_s", "total_s", "dense_error", "iou")
+OVERLAP_COLUMNS = (*COLUMNS, "source_iou", "overlap_mapped")
 
 
 def true_overlap(target: Mesh, target_corr: np.ndarray, kept_rows: np.ndarray) -> np.ndarray:
@@ -95,6 +104,96 @@ def run_pair(part_name: str, parts: Path, folder: ShapeFolder, target_name: str,
     return row
 
 
+def run_overlap_pair(
+    part_name: str, parts: Path, folder: ShapeFolder, target_part: str, args, extractor
+) -> dict:
+    """Match one part to a part of another shape (``partial="both"``) and score both overlaps."""
+    manifest = {row["part"]: row for row in json.loads((parts / "partial.json").read_text())["parts"]}
+    meshes = [load_mesh(parts / "off" / f"{name}.off") for name in (part_name, target_part)]
+    to_original = [np.load(parts / "maps" / f"{name}.npy") for name in (part_name, target_part)]
+    wholes = [folder.load(manifest[name]["shape"]) for name in (part_name, target_part)]
+    positions = []
+    for whole, kept in zip(wholes, to_original):
+        position = -np.ones(whole.mesh.n_verts, dtype=np.int64)
+        position[kept] = np.arange(kept.size)
+        positions.append(position)
+    # a reference point is in the overlap when both parts kept it
+    shared = (positions[0][wholes[0].corr] >= 0) & (positions[1][wholes[1].corr] >= 0)
+    row = {"part": part_name, "target": target_part, "kept_area": manifest[part_name]["kept_area"]}
+    started = time.perf_counter()
+    result = spidermatch.match(
+        meshes[0],
+        meshes[1],
+        features=extractor,
+        resolution=args.faces,
+        time_limit=args.time_limit,
+        strict=False,
+        partial="both",
+    )
+    row["total_s"] = round(time.perf_counter() - started, 1)
+    row.update(
+        mode=result.details.pair.mode if result.details.pair else "?",
+        status=result.status,
+        gap=result.gap,
+        solve_s=round(result.timings.get("solve", float("nan")), 1),
+    )
+    truth_x = _part_truth(meshes[0], wholes[0], to_original[0], shared)
+    truth_y = _part_truth(meshes[1], wholes[1], to_original[1], shared)
+    if result.source_overlap is not None:
+        row["source_iou"] = round(area_iou(meshes[0], result.source_overlap, truth_x), 4)
+    if result.dense_map is None:
+        return row
+    sources = positions[0][wholes[0].corr[shared]]
+    images = result.dense_map[sources]
+    mapped = images >= 0
+    row["overlap_mapped"] = round(float(mapped.mean()), 4)
+    row["iou"] = round(area_iou(meshes[1], result.dense.covered, truth_y), 4)
+    if not mapped.any():  # the estimated overlap missed the true one: no error to measure
+        return row
+    # measured on the whole target shape, as the partial-to-full runs are
+    truth_images = wholes[1].corr[shared][mapped]
+    errors = pointwise_geodesic_errors(wholes[1].mesh, to_original[1][images[mapped]], truth_images)
+    row["dense_error"] = round(float(errors.mean()), 4)
+    return row
+
+
+def overlap_shares(parts: Path, folder: ShapeFolder, names: tuple[str, str]) -> tuple[float, float]:
+    """Share of each part's area that truly overlaps the other (both kept the reference point)."""
+    manifest = {row["part"]: row for row in json.loads((parts / "partial.json").read_text())["parts"]}
+    meshes = [load_mesh(parts / "off" / f"{name}.off") for name in names]
+    kept = [np.load(parts / "maps" / f"{name}.npy") for name in names]
+    wholes = [folder.load(manifest[name]["shape"]) for name in names]
+    flags = []
+    for whole, rows in zip(wholes, kept):
+        flag = np.zeros(whole.mesh.n_verts, dtype=bool)
+        flag[rows] = True
+        flags.append(flag[whole.corr])
+    shared = flags[0] & flags[1]
+    truths = [_part_truth(mesh, whole, rows, shared) for mesh, whole, rows in zip(meshes, wholes, kept)]
+    return tuple(float(mesh.vertex_areas[t].sum() / mesh.area) for mesh, t in zip(meshes, truths))
+
+
+def _part_truth(part: Mesh, whole, kept: np.ndarray, shared: np.ndarray) -> np.ndarray:
+    """Vertices of a part whose nearest reference point (on its whole) is in the overlap, (V_part,) bool."""
+    _, nearest = cKDTree(whole.mesh.verts[whole.corr]).query(whole.mesh.verts[kept])
+    return shared[nearest]
+
+
+def _overlap_figures(rows: list[dict]) -> dict:
+    """Partial-to-partial: source overlap IoU, the share of the true overlap mapped, runs within 0.06."""
+    estimated = [row for row in rows if "source_iou" in row]
+    return {
+        "mean_source_iou": _mean(estimated, "source_iou"),
+        "mean_overlap_mapped": _mean([row for row in rows if "overlap_mapped" in row], "overlap_mapped"),
+        "runs_error_within_0.06": sum(row.get("dense_error", float("inf")) <= 0.06 for row in rows),
+        "runs_iou_from_0.7": sum(row.get("iou", 0.0) >= 0.7 for row in rows),
+    }
+
+
+def _median(rows: list[dict], key: str) -> float | None:
+    return round(statistics.median(row[key] for row in rows), 4) if rows else None
+
+
 def _mean(rows: list[dict], key: str) -> float | None:
     return round(statistics.mean(row[key] for row in rows), 4) if rows else None
 
@@ -111,6 +210,8 @@ def summary(rows: list[dict]) -> dict:
             "median_solve_s": statistics.median(row["solve_s"] for row in group),
             "mean_dense_error": _mean(scored, "dense_error"),
             "mean_iou": _mean(scored, "iou"),
+            "median_dense_error": _median(scored, "dense_error"),
+            **(_overlap_figures(group) if any("source_iou" in r for r in group) else {}),
         }
 
     kinds = sorted({row["part"].rsplit("-", 1)[1] for row in rows})
@@ -126,7 +227,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--parts", required=True, type=Path, help="the output folder of make_partial.py")
     parser.add_argument("--pairs", required=True, help="pairs file: 'a b' per line")
     parser.add_argument("--checkpoint", required=True, help="a trained network, or 'wks' for WKS descriptors")
-    parser.add_argument("--mode", choices=("partial", "whole"), default="partial")
+    parser.add_argument(
+        "--mode",
+        choices=("partial", "whole", "both"),
+        default="partial",
+        help="partial: each part against whole shapes; whole: the same forced as whole shapes; "
+        "both: each part against the parts of the other shape of its pair (partial-to-partial)",
+    )
+    parser.add_argument(
+        "--min-overlap",
+        type=float,
+        default=0.3,
+        help="--mode both: only pairs of parts of which each truly shares at least this share of its area",
+    )
     parser.add_argument("--faces", type=int, default=1000)
     parser.add_argument("--time-limit", type=float, default=120.0)
     parser.add_argument("--runs", default=None, help="FIRST:STOP, a slice of the runs")
@@ -143,16 +256,29 @@ def main(argv: list[str] | None = None) -> int:
         for row in manifest
         if row["shape"] in (a, b)
     ]
+    if args.mode == "both":  # each part of a against each part of b: two scans of two people
+        runs = [
+            (row["part"], other["part"])
+            for a, b in read_pairs_file(args.pairs, folder.names)
+            for row in manifest
+            if row["shape"] == a
+            for other in manifest
+            if other["shape"] == b
+        ]
     runs = list(dict.fromkeys(runs))
+    if args.mode == "both" and args.min_overlap > 0:  # pairs of scans that share little are left out
+        runs = [run for run in runs if min(overlap_shares(args.parts, folder, run)) >= args.min_overlap]
     if args.runs:
         first, stop = (int(text) for text in args.runs.split(":"))
         runs = runs[first:stop]
     extractor = "wks" if args.checkpoint == "wks" else LearnedExtractor(args.checkpoint)
-    print(" | ".join(COLUMNS), flush=True)
+    columns = OVERLAP_COLUMNS if args.mode == "both" else COLUMNS
+    print(" | ".join(columns), flush=True)
     rows = []
     for part_name, target_name in runs:
-        rows.append(run_pair(part_name, args.parts, folder, target_name, args, extractor))
-        print(format_row(rows[-1], COLUMNS, 4), flush=True)
+        run = run_overlap_pair if args.mode == "both" else run_pair
+        rows.append(run(part_name, args.parts, folder, target_name, args, extractor))
+        print(format_row(rows[-1], columns, 4), flush=True)
         write_rows(args.out, rows, {"summary": summary(rows)})
     print(json.dumps(summary(rows), indent=2))
     return 0
