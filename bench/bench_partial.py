@@ -73,22 +73,8 @@ def run_pair(part_name: str, parts: Path, folder: ShapeFolder, target_name: str,
     position[to_original] = np.arange(to_original.size)
     kept_rows = position[whole.corr] >= 0
     row = {"part": part_name, "target": target_name, "kept_area": entry["kept_area"]}
-    started = time.perf_counter()
-    result = spidermatch.match(
-        part,
-        target.mesh,
-        features=extractor,
-        resolution=args.faces,
-        time_limit=args.time_limit,
-        strict=False,
-        partial="auto" if args.mode == "partial" else "off",
-    )
-    row["total_s"] = round(time.perf_counter() - started, 1)
-    row.update(
-        mode=result.details.pair.mode if result.details.pair else "?",
-        status=result.status,
-        gap=result.gap,
-        solve_s=round(result.timings.get("solve", float("nan")), 1),
+    result = _timed_match(
+        part, target.mesh, args, extractor, "auto" if args.mode == "partial" else "off", row
     )
     if result.dense_map is None:
         return row
@@ -102,6 +88,28 @@ def run_pair(part_name: str, parts: Path, folder: ShapeFolder, target_name: str,
         covered[result.dense_map] = True
     row["iou"] = round(area_iou(target.mesh, covered, truth), 4)
     return row
+
+
+def _timed_match(source: Mesh, target: Mesh, args, extractor, partial: str, row: dict):
+    """``spidermatch.match`` as a user calls it; the mode, status, gap and times go into ``row``."""
+    started = time.perf_counter()
+    result = spidermatch.match(
+        source,
+        target,
+        features=extractor,
+        resolution=args.faces,
+        time_limit=args.time_limit,
+        strict=False,
+        partial=partial,
+    )
+    row["total_s"] = round(time.perf_counter() - started, 1)
+    row.update(
+        mode=result.details.pair.mode if result.details.pair else "?",
+        status=result.status,
+        gap=result.gap,
+        solve_s=round(result.timings.get("solve", float("nan")), 1),
+    )
+    return result
 
 
 def run_overlap_pair(
@@ -120,23 +128,7 @@ def run_overlap_pair(
     # a reference point is in the overlap when both parts kept it
     shared = (positions[0][wholes[0].corr] >= 0) & (positions[1][wholes[1].corr] >= 0)
     row = {"part": part_name, "target": target_part, "kept_area": manifest[part_name]["kept_area"]}
-    started = time.perf_counter()
-    result = spidermatch.match(
-        meshes[0],
-        meshes[1],
-        features=extractor,
-        resolution=args.faces,
-        time_limit=args.time_limit,
-        strict=False,
-        partial="both",
-    )
-    row["total_s"] = round(time.perf_counter() - started, 1)
-    row.update(
-        mode=result.details.pair.mode if result.details.pair else "?",
-        status=result.status,
-        gap=result.gap,
-        solve_s=round(result.timings.get("solve", float("nan")), 1),
-    )
+    result = _timed_match(meshes[0], meshes[1], args, extractor, "both", row)
     truth_x = _part_truth(meshes[0], wholes[0], to_original[0], shared)
     truth_y = _part_truth(meshes[1], wholes[1], to_original[1], shared)
     if result.source_overlap is not None:

@@ -1,6 +1,7 @@
 """Partial shapes: cut copies with exact index maps, recognising a part, matching it in the partial mode."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -289,3 +290,13 @@ def test_each_partial_mode_asks_the_extractor_for_its_own_features(creature, par
         settings=settings,
     )
     assert extractor.calls == [expected]
+
+
+def test_an_overlap_of_almost_nothing_is_refused_with_the_source_named(creature):
+    from spidermatch.geometry.overlap import overlap_part
+
+    region = np.zeros(creature.n_verts, dtype=bool)
+    region[creature.faces[0]] = True  # one triangle: far below the least overlap
+    with pytest.raises(MeshError, match=re.escape(f"{creature.name}: no overlap with the target found")):
+        overlap_part(creature, region)
+    assert overlap_part(creature, np.ones(creature.n_verts, dtype=bool)).kept_area == pytest.approx(1.0)
