@@ -144,6 +144,22 @@ def test_resume_reproduces_the_uninterrupted_run(tmp_path, shapes):
     assert _tensors_equal(ends[0]["ema"], ends[1]["ema"])
 
 
+def test_extending_a_cosine_run_on_resume_warns_that_the_schedule_restarts(tmp_path, shapes, caplog):
+    """The scheduler's period comes from the checkpoint: past it the rate rises again, and the log says so."""
+    config = tiny_config(n_steps=3)
+    config.optim.schedule = "cosine"
+    run_training(config, tmp_path / "first", shapes, None)
+    longer = tiny_config(n_steps=8)
+    longer.optim.schedule = "cosine"
+    longer.resume = str(tmp_path / "first" / "last.pt")
+    with caplog.at_level("WARNING", logger="train.loop"):
+        run_training(longer, tmp_path / "second", shapes, None)
+    assert "made for 3 steps" in caplog.text and "warm restart" in caplog.text
+    with (tmp_path / "second" / "losses.csv").open() as handle:
+        rates = [float(row["lr"]) for row in csv.DictReader(handle)]
+    assert rates[-1] > 2 * config.optim.lr_min  # rising again, not held at the floor
+
+
 def test_weight_average_is_what_inference_loads(tmp_path, shapes):
     config = tiny_config()
     state = new_state(config)

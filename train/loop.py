@@ -369,6 +369,7 @@ def run_training(
         load_checkpoint_into(config.resume, state, config)
         _carry_best(Path(config.resume), out_dir)
         logger.info("resumed from %s at step %d", config.resume, state.step)
+        _warn_if_cosine_restarts(state.scheduler, run.n_steps)
     started = time.monotonic() if started is None else started
     deadline = math.inf if run.time_limit_min is None else started + 60 * run.time_limit_min
     losses, last_val = [], math.nan
@@ -425,6 +426,24 @@ def progress_fields(
     name = {"val_error": "val_err"}.get(criterion, criterion)
     fields[name] = f"{last_val:.4f}"
     return fields
+
+
+def _warn_if_cosine_restarts(scheduler, n_steps: int) -> None:
+    """Say that a resumed cosine schedule keeps the length it was made with, if ``n_steps`` differs.
+
+    The scheduler's state (its period included) comes from the checkpoint, so a run extended past
+    its planned end does not stretch the cosine: the learning rate rises again towards ``lr``
+    (a warm restart), which is what extending a finished run measured (docs/partial.md).
+    """
+    planned = getattr(scheduler, "T_max", None)
+    if planned is not None and planned != n_steps:
+        logger.warning(
+            "run.n_steps=%d, but the resumed cosine schedule was made for %d steps and keeps that "
+            "period: past step %d the learning rate rises again (a warm restart)",
+            n_steps,
+            planned,
+            planned,
+        )
 
 
 def _carry_best(resumed: Path, out_dir: Path) -> None:
