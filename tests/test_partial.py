@@ -231,17 +231,43 @@ def test_partial_both_accepts_only_its_three_names(creature):
         spidermatch.match(creature, creature, partial="overlap")
 
 
-def test_the_command_line_names_where_partial_both_is_available(tmp_path, creature):
-    save_mesh(creature, tmp_path / "a.off")
+def test_the_command_line_matches_two_parts_and_writes_the_source_own_indices(tmp_path, creature):
+    normal = np.array([0.0, 1.0, 0.3])
+    lower = plane_cut(creature, normal, 0.65, "lower")
+    upper = plane_cut(creature, -normal, 0.65, "upper")
+    save_mesh(lower.mesh, tmp_path / "lower.off")
+    save_mesh(upper.mesh, tmp_path / "upper.off")
     with initialize_config_module(config_module="conf", version_base="1.3"):
         cfg = compose(
             config_name="match",
-            overrides=[f"source={tmp_path / 'a.off'}", f"target={tmp_path / 'a.off'}", "partial=both"],
+            overrides=[
+                f"source={tmp_path / 'lower.off'}",
+                f"target={tmp_path / 'upper.off'}",
+                "partial=both",
+                "resolution=100",
+                "output.png=false",
+                "dense.inverse=true",
+                "solver.time_limit=15",  # WKS on two parts is hard to certify; the files are the point here
+            ],
         )
     out = tmp_path / "run"
-    assert run_match(cfg, out) != 0
+    assert run_match(cfg, out) == 0
     result = json.loads((out / "result.json").read_text())
-    assert "Python API" in result["error"]
+    assert result["pair"]["mode"] == "overlap" and result["status"] in ("optimal", "feasible")
+    n_piece = result["overlap"]["source_overlap_vertices"]
+    assert 0 < n_piece < lower.mesh.n_verts and 0 < result["overlap"]["source_overlap_area"] < 1
+    assert "target_covered_area" in result["overlap"]
+    with np.load(out / "dense_map.npz") as dense:
+        ids = dense["source_vertex"]
+        assert ids.shape == (n_piece,) == dense["vertex"].shape
+        assert np.unique(ids).size == n_piece and ids.max() < lower.mesh.n_verts
+        assert np.all(np.isin(dense["inverse_vertex"], ids))  # onto the piece, in source indices
+        faces = lower.mesh.faces[dense["inverse_face"]]
+        assert np.all(np.isin(faces, ids))
+    rows = np.loadtxt(out / "dense_matches.csv", delimiter=",", skiprows=1, dtype=np.int64)
+    assert np.array_equal(np.sort(rows[:, 0]), np.sort(ids))
+    matches = np.loadtxt(out / "matches.csv", delimiter=",", skiprows=1, dtype=np.int64)
+    assert np.all(np.isin(matches[:, 0], ids))
 
 
 class _RecordingExtractor:

@@ -50,7 +50,8 @@ class FeatureMemo:
                 inputs.target,
                 self.max_vertices,
                 capped,
-                partial=inputs.partial,
+                partial=inputs.partial and not inputs.overlap,
+                overlap=inputs.overlap,
             )
             return *features, self.name, feature_details(self.extractor, capped)
         (feat_x, details_x), (feat_y, details_y) = (

@@ -20,7 +20,7 @@ from spidermatch.data.datasets import DatasetError, SyntheticShapes
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, pair_features
 from spidermatch.geometry.io import load_mesh, read_vts
 from spidermatch.geometry.mesh import Mesh, MeshError
-from spidermatch.geometry.partial import PairKind, announce_pair, pair_kind
+from spidermatch.geometry.partial import PairKind, announce_pair, original_faces, overlap_kind, pair_kind
 from spidermatch.model_size import check_meshes_fit
 from spidermatch.validate import (
     OptionError,
@@ -45,6 +45,8 @@ class MatchInputs:
     resolution: int
     description: str
     partial: bool = False
+    overlap: bool = False
+    piece_of: tuple | None = None  # (vertex ids (V,), face ids (F,)) of ``source`` in the user's source
 
 
 def load_inputs(cfg) -> MatchInputs:
@@ -89,10 +91,10 @@ def check_inputs(cfg, inputs: MatchInputs, report: dict) -> MatchInputs:
     if warnings:
         report.setdefault("warnings", []).extend(warnings)
     check_meshes_fit((inputs.source.n_verts, inputs.target.n_verts), dense_settings(cfg) is not None)
-    return dataclasses.replace(inputs, partial=kind.mode == "partial")
+    return dataclasses.replace(inputs, partial=kind.mode != "whole", overlap=kind.mode == "overlap")
 
 
-PARTIAL_OPTIONS = ("auto", "off")
+PARTIAL_OPTIONS = ("auto", "off", "both")
 
 
 def checked_pair_kind(cfg, inputs: MatchInputs, report: dict) -> PairKind:
@@ -102,14 +104,10 @@ def checked_pair_kind(cfg, inputs: MatchInputs, report: dict) -> PairKind:
     refusal as a warning.
     """
     option = cfg.get("partial", "auto")
-    if option == "both":
-        raise OptionError(
-            "partial=both (two incomplete scans, the overlap unknown) is in the Python API only so far: "
-            "spidermatch.match(source, target, partial='both'); the command line matches a part onto a "
-            "whole (partial=auto)"
-        )
     if option not in PARTIAL_OPTIONS:
         raise OptionError(f"partial={option!r}: choose from {', '.join(PARTIAL_OPTIONS)}")
+    if option == "both":
+        return overlap_kind(inputs.source, inputs.target)
     try:
         return pair_kind(inputs.source, inputs.target, partial=option == "auto")
     except MeshError as error:
@@ -199,9 +197,52 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
         logger.info("features: WKS (no trained checkpoint given). %s", BETTER_FEATURES_HINT)
     capped = {}
     feat_x, feat_y = pair_features(
-        extractor, inputs.source, inputs.target, feature_cap(cfg), capped, partial=inputs.partial
+        extractor,
+        inputs.source,
+        inputs.target,
+        feature_cap(cfg),
+        capped,
+        partial=inputs.partial and not inputs.overlap,
+        overlap=inputs.overlap,
     )
     return feat_x, feat_y, name, feature_details(extractor, capped)
+
+
+def overlap_inputs(inputs: MatchInputs, feat_x: np.ndarray, feat_y: np.ndarray, report: dict):
+    """``partial=both``: the inputs cut to the source's estimated overlap with the target, and its features.
+
+    The ground truth keeps the reference points inside the piece (renumbered to it);
+    ``piece_of`` says where each vertex and face of the piece lies in the user's source, so
+    that the files name the source's own indices. ``report["overlap"]`` gets the piece's size.
+
+    Returns
+    -------
+    MatchInputs
+        With ``source`` the piece (V_piece vertices).
+    np.ndarray, shape (V_piece, D)
+        The source features of the piece.
+    """
+    from spidermatch.api import source_overlap_piece
+
+    piece = source_overlap_piece(inputs.source, inputs.target, feat_x, feat_y)
+    report["overlap"] = {
+        "source_overlap_vertices": int(piece.mesh.n_verts),
+        "source_overlap_area": round(float(piece.kept_area), 4),
+    }
+    source_corr, target_corr = inputs.source_corr, inputs.target_corr
+    if source_corr is not None:
+        position = np.full(inputs.source.n_verts, -1, dtype=np.int64)
+        position[piece.to_original] = np.arange(piece.mesh.n_verts)
+        inside = position[source_corr] >= 0
+        source_corr, target_corr = position[source_corr[inside]], target_corr[inside]
+    cut = dataclasses.replace(
+        inputs,
+        source=piece.mesh,
+        source_corr=source_corr,
+        target_corr=target_corr,
+        piece_of=(piece.to_original, original_faces(piece, inputs.source)),
+    )
+    return cut, feat_x[piece.to_original]
 
 
 def feature_details(extractor, capped: dict) -> dict:

@@ -14,7 +14,14 @@ import time
 from pathlib import Path
 
 from spidermatch import shutdown
-from spidermatch.cli.inputs import INPUT_ERRORS, check_inputs, compute_features, load_inputs, resolution_text
+from spidermatch.cli.inputs import (
+    INPUT_ERRORS,
+    check_inputs,
+    compute_features,
+    load_inputs,
+    overlap_inputs,
+    resolution_text,
+)
 from spidermatch.cli.outputs import (
     final_line,
     result_summary,
@@ -98,6 +105,8 @@ def run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) ->
     if details:
         report["feature_inputs"] = details
     logger.info("features (%s) done in %.2f s", feature_name, feature_time)
+    if inputs.overlap:  # partial=both: only the source's estimated overlap with the target is matched
+        inputs, feat_x = overlap_inputs(inputs, feat_x, feat_y, report)
     settings = dataclasses.replace(
         settings_from_config(cfg, inputs.resolution, feature_name), partial=inputs.partial
     )

@@ -146,7 +146,10 @@ def write_matching(
     """``matches.csv`` and, with ground truth, the sparse map's errors; returns (vertices, errors) or None."""
     pairs = result.full_pairs
     if cfg.output.matches_csv:
-        write_matches(output_dir / "matches.csv", pairs)
+        written = pairs.copy()
+        if inputs.piece_of is not None:  # partial=both: the file names the user's source vertices
+            written[:, 0] = inputs.piece_of[0][written[:, 0]]
+        write_matches(output_dir / "matches.csv", written)
         logger.info("wrote %s (%d matches)", output_dir / "matches.csv", len(pairs))
     if inputs.source_corr is None:
         return None
@@ -170,7 +173,7 @@ def write_dense(
     from spidermatch.dense.densify import certified_agreement
     from spidermatch.report.dense_report import dense_figures, write_dense_outputs
 
-    for path in write_dense_outputs(output_dir, result.dense):
+    for path in write_dense_outputs(output_dir, result.dense, inputs.piece_of):
         logger.info("wrote %s", path)
     certified = certified_agreement(result.dense, inputs.target, result.source, result.target, result.low_map)
     figures, errors = dense_figures(
@@ -184,7 +187,7 @@ def write_dense(
     )
     report["dense"] = figures
     if result.dense.covered is not None:
-        report["overlap"] = overlap_summary(inputs.target, result.dense.covered)
+        report.setdefault("overlap", {}).update(overlap_summary(inputs.target, result.dense.covered))
         logger.info(
             "partial map: covers %.0f %% of the target's area", 100 * report["overlap"]["target_covered_area"]
         )

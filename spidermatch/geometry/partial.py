@@ -92,6 +92,27 @@ def kept_part(mesh: Mesh, keep_faces: np.ndarray, name: str, kind: str) -> Parti
     return PartialShape(part, to_original.astype(np.int64), part.area / mesh.area, kind)
 
 
+def original_faces(part: PartialShape, whole: Mesh) -> np.ndarray:
+    """Index in ``whole.faces`` of each face of ``part.mesh`` (F_part,), int64.
+
+    A part keeps a subset of its whole's faces, only renumbered: each face is found by its
+    sorted corners (one integer key per face, exact below 2 million vertices).
+    """
+    n = np.int64(whole.n_verts)
+
+    def keys(faces: np.ndarray) -> np.ndarray:
+        corners = np.sort(faces.astype(np.int64), axis=1)
+        return (corners[:, 0] * n + corners[:, 1]) * n + corners[:, 2]
+
+    whole_keys = keys(whole.faces)
+    order = np.argsort(whole_keys)
+    wanted = keys(part.to_original[part.mesh.faces])
+    found = order[np.searchsorted(whole_keys[order], wanted)]
+    if not np.array_equal(whole_keys[found], wanted):
+        raise ValueError(f"{part.mesh.name}: a face is not one of {whole.name}'s")
+    return found.astype(np.int64)
+
+
 def _bowtie_vertices(faces: np.ndarray) -> np.ndarray:
     vertex, fan = vertex_fans(faces)
     pairs = np.unique(np.stack([vertex, fan], axis=1), axis=0)

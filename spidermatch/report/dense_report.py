@@ -44,25 +44,39 @@ from spidermatch.shutdown import atomic_path
 logger = logging.getLogger(__name__)
 
 
-def write_dense_outputs(output_dir: Path, dense: DenseMap) -> list[Path]:
+def write_dense_outputs(output_dir: Path, dense: DenseMap, piece: tuple | None = None) -> list[Path]:
     """Write ``dense_matches.csv``, ``dense_map.npz`` and, with an inverse map, ``dense_inverse_matches.csv``.
 
     ``dense_matches.csv`` has a ``source_vertex,target_vertex`` row per source vertex.
+
+    Parameters
+    ----------
+    output_dir : Path
+    dense : DenseMap
+    piece : (np.ndarray (V_piece,), np.ndarray (F_piece,)), optional
+        When ``dense`` maps a piece of the user's source (``partial=both``): the source's
+        vertex and face index of each of the piece's. The files then name the source's own
+        vertices and faces: one CSV row per vertex of the piece, ``source_vertex`` (V_piece,)
+        in the archive, and the inverse map onto the source's faces.
     """
     csv_path, npz_path = output_dir / "dense_matches.csv", output_dir / "dense_map.npz"
-    _write_vertex_pairs(csv_path, dense.vertex, "source_vertex,target_vertex")
+    vertex_ids, face_ids = piece if piece is not None else (None, None)
+    _write_vertex_pairs(csv_path, dense.vertex, "source_vertex,target_vertex", sources=vertex_ids)
     extra = {} if dense.covered is None else {"target_covered": dense.covered}
+    if vertex_ids is not None:
+        extra["source_vertex"] = vertex_ids
     written = [csv_path, npz_path]
     if dense.inverse is not None:
         inverse = dense.inverse
+        inverse_vertex = inverse.vertex if vertex_ids is None else vertex_ids[inverse.vertex]
         extra.update(
-            inverse_vertex=inverse.vertex,
-            inverse_face=inverse.face,
+            inverse_vertex=inverse_vertex,
+            inverse_face=inverse.face if face_ids is None else face_ids[inverse.face],
             inverse_bary=inverse.bary,
             inverse_gap=inverse.gap,
         )
         written.append(output_dir / "dense_inverse_matches.csv")
-        _write_vertex_pairs(written[-1], inverse.vertex, "target_vertex,source_vertex")
+        _write_vertex_pairs(written[-1], inverse_vertex, "target_vertex,source_vertex")
     with atomic_path(npz_path) as tmp:
         np.savez(
             tmp, vertex=dense.vertex, face=dense.face, bary=dense.bary, method=np.array(dense.method), **extra
@@ -70,8 +84,10 @@ def write_dense_outputs(output_dir: Path, dense: DenseMap) -> list[Path]:
     return written
 
 
-def _write_vertex_pairs(path: Path, images: np.ndarray, header: str) -> None:
-    rows = np.stack([np.arange(images.size), images], axis=1)
+def _write_vertex_pairs(
+    path: Path, images: np.ndarray, header: str, sources: np.ndarray | None = None
+) -> None:
+    rows = np.stack([np.arange(images.size) if sources is None else sources, images], axis=1)
     with atomic_path(path) as tmp:
         np.savetxt(tmp, rows, fmt="%d", delimiter=",", header=header, comments="")
 
