@@ -34,6 +34,7 @@ import logging
 import statistics
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -116,53 +117,60 @@ def run_overlap_pair(
     part_name: str, parts: Path, folder: ShapeFolder, target_part: str, args, extractor
 ) -> dict:
     """Match one part to a part of another shape (``partial="both"``) and score both overlaps."""
-    manifest = {row["part"]: row for row in json.loads((parts / "partial.json").read_text())["parts"]}
-    meshes = [load_mesh(parts / "off" / f"{name}.off") for name in (part_name, target_part)]
-    to_original = [np.load(parts / "maps" / f"{name}.npy") for name in (part_name, target_part)]
-    wholes = [folder.load(manifest[name]["shape"]) for name in (part_name, target_part)]
-    positions = []
-    for whole, kept in zip(wholes, to_original):
-        position = -np.ones(whole.mesh.n_verts, dtype=np.int64)
-        position[kept] = np.arange(kept.size)
-        positions.append(position)
-    # a reference point is in the overlap when both parts kept it
-    shared = (positions[0][wholes[0].corr] >= 0) & (positions[1][wholes[1].corr] >= 0)
-    row = {"part": part_name, "target": target_part, "kept_area": manifest[part_name]["kept_area"]}
+    pair = part_pair(parts, folder, (part_name, target_part))
+    meshes, wholes, to_original = pair.meshes, pair.wholes, pair.to_original
+    row = {"part": part_name, "target": target_part, "kept_area": pair.kept_area}
     result = _timed_match(meshes[0], meshes[1], args, extractor, "both", row)
-    truth_x = _part_truth(meshes[0], wholes[0], to_original[0], shared)
-    truth_y = _part_truth(meshes[1], wholes[1], to_original[1], shared)
     if result.source_overlap is not None:
-        row["source_iou"] = round(area_iou(meshes[0], result.source_overlap, truth_x), 4)
+        row["source_iou"] = round(area_iou(meshes[0], result.source_overlap, pair.truths[0]), 4)
     if result.dense_map is None:
         return row
-    sources = positions[0][wholes[0].corr[shared]]
-    images = result.dense_map[sources]
+    images = result.dense_map[pair.positions[0][wholes[0].corr[pair.shared]]]
     mapped = images >= 0
     row["overlap_mapped"] = round(float(mapped.mean()), 4)
-    row["iou"] = round(area_iou(meshes[1], result.dense.covered, truth_y), 4)
+    row["iou"] = round(area_iou(meshes[1], result.dense.covered, pair.truths[1]), 4)
     if not mapped.any():  # the estimated overlap missed the true one: no error to measure
         return row
     # measured on the whole target shape, as the partial-to-full runs are
-    truth_images = wholes[1].corr[shared][mapped]
+    truth_images = wholes[1].corr[pair.shared][mapped]
     errors = pointwise_geodesic_errors(wholes[1].mesh, to_original[1][images[mapped]], truth_images)
     row["dense_error"] = round(float(errors.mean()), 4)
     return row
 
 
-def overlap_shares(parts: Path, folder: ShapeFolder, names: tuple[str, str]) -> tuple[float, float]:
-    """Share of each part's area that truly overlaps the other (both kept the reference point)."""
+@dataclass(frozen=True)
+class PartPair:
+    """Two parts (of two shapes), where each vertex came from, and their true overlap."""
+
+    meshes: list  # the two part meshes
+    to_original: list  # (V_part,) vertex of its whole shape, per part
+    wholes: list  # the two whole shapes (mesh and reference points)
+    positions: list  # (V_whole,) index in the part, -1 where cut away, per part
+    shared: np.ndarray  # (K,) bool: reference points both parts kept
+    truths: list  # (V_part,) bool: vertices whose nearest reference point is shared, per part
+    kept_area: float  # the first part's share of its whole's area
+
+
+def part_pair(parts: Path, folder: ShapeFolder, names: tuple[str, str]) -> PartPair:
+    """Two parts of ``make_partial.py``'s output and their true overlap (both kept the reference point)."""
     manifest = {row["part"]: row for row in json.loads((parts / "partial.json").read_text())["parts"]}
     meshes = [load_mesh(parts / "off" / f"{name}.off") for name in names]
-    kept = [np.load(parts / "maps" / f"{name}.npy") for name in names]
+    to_original = [np.load(parts / "maps" / f"{name}.npy") for name in names]
     wholes = [folder.load(manifest[name]["shape"]) for name in names]
-    flags = []
-    for whole, rows in zip(wholes, kept):
-        flag = np.zeros(whole.mesh.n_verts, dtype=bool)
-        flag[rows] = True
-        flags.append(flag[whole.corr])
-    shared = flags[0] & flags[1]
-    truths = [_part_truth(mesh, whole, rows, shared) for mesh, whole, rows in zip(meshes, wholes, kept)]
-    return tuple(float(mesh.vertex_areas[t].sum() / mesh.area) for mesh, t in zip(meshes, truths))
+    positions = []
+    for whole, kept in zip(wholes, to_original):
+        position = -np.ones(whole.mesh.n_verts, dtype=np.int64)
+        position[kept] = np.arange(kept.size)
+        positions.append(position)
+    shared = (positions[0][wholes[0].corr] >= 0) & (positions[1][wholes[1].corr] >= 0)
+    truths = [_part_truth(*items, shared) for items in zip(meshes, wholes, to_original)]
+    return PartPair(meshes, to_original, wholes, positions, shared, truths, manifest[names[0]]["kept_area"])
+
+
+def overlap_shares(parts: Path, folder: ShapeFolder, names: tuple[str, str]) -> tuple[float, float]:
+    """Share of each part's area that truly overlaps the other (both kept the reference point)."""
+    pair = part_pair(parts, folder, names)
+    return tuple(float(mesh.vertex_areas[t].sum() / mesh.area) for mesh, t in zip(pair.meshes, pair.truths))
 
 
 def _part_truth(part: Mesh, whole, kept: np.ndarray, shared: np.ndarray) -> np.ndarray:

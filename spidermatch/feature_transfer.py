@@ -61,7 +61,7 @@ def pair_features(
         is given both meshes at once (the part measured in the whole's unit).
     overlap : bool
         Both meshes are parts of one surface: an extractor with ``parts_features(x, y)`` is
-        given both at once (in one unit of length).
+        given both at once (in one unit of length); it takes precedence over ``partial``.
 
     Returns
     -------

@@ -164,29 +164,34 @@ def test_the_partial_mode_recovers_the_identity_on_the_kept_part(creature):
     assert (covered & kept).sum() / (covered | kept).sum() > 0.85
 
 
-def test_a_source_with_a_hole_is_matched_without_options(tmp_path, creature):
-    holed = holes_cut(creature, np.array([10]), 0.85, "holed")
-    save_mesh(holed.mesh, tmp_path / "holed.off")
-    save_mesh(creature, tmp_path / "whole.off")
+def _matched_files(tmp_path, source: Mesh, target: Mesh, *overrides: str):
+    """Run ``spidermatch-match`` on the two meshes (saved as source.off, target.off) without pictures."""
+    save_mesh(source, tmp_path / "source.off")
+    save_mesh(target, tmp_path / "target.off")
     with initialize_config_module(config_module="conf", version_base="1.3"):
         cfg = compose(
             config_name="match",
             overrides=[
-                f"source={tmp_path / 'holed.off'}",
-                f"target={tmp_path / 'whole.off'}",
-                "resolution=150",
+                f"source={tmp_path / 'source.off'}",
+                f"target={tmp_path / 'target.off'}",
                 "output.png=false",
-                "solver.time_limit=600",
+                *overrides,
             ],
         )
     out = tmp_path / "run"
     assert run_match(cfg, out) == 0
+    return out
+
+
+def test_a_source_with_a_hole_is_matched_without_options(tmp_path, creature):
+    holed = holes_cut(creature, np.array([10]), 0.85, "holed")
+    out = _matched_files(tmp_path, holed.mesh, creature, "resolution=150", "solver.time_limit=600")
     result = json.loads((out / "result.json").read_text())
     assert result["pair"]["mode"] == "partial" and "1 boundary loop" in result["pair"]["reason"]
     assert result["status"] in ("optimal", "feasible")
     assert 0.5 < result["overlap"]["target_covered_area"] <= 1.0
     with np.load(out / "dense_map.npz") as dense:
-        assert dense["target_covered"].shape == (load_mesh(tmp_path / "whole.off").n_verts,)
+        assert dense["target_covered"].shape == (load_mesh(tmp_path / "target.off").n_verts,)
 
 
 def _smooth_position_code(verts: np.ndarray, dims: int = 64, seed: int = 0) -> np.ndarray:
@@ -235,23 +240,15 @@ def test_the_command_line_matches_two_parts_and_writes_the_source_own_indices(tm
     normal = np.array([0.0, 1.0, 0.3])
     lower = plane_cut(creature, normal, 0.65, "lower")
     upper = plane_cut(creature, -normal, 0.65, "upper")
-    save_mesh(lower.mesh, tmp_path / "lower.off")
-    save_mesh(upper.mesh, tmp_path / "upper.off")
-    with initialize_config_module(config_module="conf", version_base="1.3"):
-        cfg = compose(
-            config_name="match",
-            overrides=[
-                f"source={tmp_path / 'lower.off'}",
-                f"target={tmp_path / 'upper.off'}",
-                "partial=both",
-                "resolution=100",
-                "output.png=false",
-                "dense.inverse=true",
-                "solver.time_limit=15",  # WKS on two parts is hard to certify; the files are the point here
-            ],
-        )
-    out = tmp_path / "run"
-    assert run_match(cfg, out) == 0
+    out = _matched_files(
+        tmp_path,
+        lower.mesh,
+        upper.mesh,
+        "partial=both",
+        "resolution=100",
+        "dense.inverse=true",
+        "solver.time_limit=15",  # WKS on two parts is hard to certify; the files are the point here
+    )
     result = json.loads((out / "result.json").read_text())
     assert result["pair"]["mode"] == "overlap" and result["status"] in ("optimal", "feasible")
     n_piece = result["overlap"]["source_overlap_vertices"]

@@ -50,7 +50,7 @@ class FeatureMemo:
                 inputs.target,
                 self.max_vertices,
                 capped,
-                partial=inputs.partial and not inputs.overlap,
+                partial=inputs.partial,
                 overlap=inputs.overlap,
             )
             return *features, self.name, feature_details(self.extractor, capped)

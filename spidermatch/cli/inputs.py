@@ -202,7 +202,7 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
         inputs.target,
         feature_cap(cfg),
         capped,
-        partial=inputs.partial and not inputs.overlap,
+        partial=inputs.partial,
         overlap=inputs.overlap,
     )
     return feat_x, feat_y, name, feature_details(extractor, capped)

@@ -23,7 +23,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from spidermatch.geometry.mesh import Mesh, MeshError
-from spidermatch.geometry.partial import PartialShape, closed_region, edge_adjacency, kept_part
+from spidermatch.geometry.partial import (
+    PartialShape,
+    closed_region,
+    edge_adjacency,
+    kept_part,
+    mean_edge_length,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -78,11 +84,11 @@ def estimated_overlap(
     forward, backward = _mutual_best(source_unit[rows_x], target_unit[rows_y])
     returned = points[backward[forward]]
     consistent = np.linalg.norm(returned - points, axis=1) <= RETURN_RADIUS * unit_length
-    weights = _sample_weights(source, rows_x)
+    nearest = cKDTree(points).query(source.verts)[1]  # the sample each vertex takes its answer from
+    weights = np.bincount(nearest, weights=source.vertex_areas, minlength=len(rows_x))  # area it stands for
     share = _ball_share(points, consistent, weights, SMOOTHING_RADIUS * unit_length)
     in_sample = share >= MIN_CONSISTENT_SHARE
-    nearest = cKDTree(points).query(source.verts)[1]
-    rings = int(np.ceil(CLOSING_RADIUS * unit_length / source.edge_lengths.mean()))
+    rings = int(np.ceil(CLOSING_RADIUS * unit_length / mean_edge_length(source)))
     region = closed_region(in_sample[nearest], edge_adjacency(source), rings)
     logger.info(
         "overlap estimate: %.0f %% of %s's samples return to themselves, %.0f %% of its area kept",
@@ -103,7 +109,7 @@ def overlap_part(source: Mesh, overlap: np.ndarray) -> PartialShape:
 
     """
     keep_faces = np.asarray(overlap, dtype=bool)[source.faces].all(axis=1)
-    share = source.face_areas[keep_faces].sum() / source.area if keep_faces.any() else 0.0
+    share = source.face_areas[keep_faces].sum() / source.area
     if share < LEAST_OVERLAP:
         raise MeshError(
             f"{source.name}: no overlap with the target found ({100 * share:.1f} % of its area has "
@@ -134,12 +140,6 @@ def _mutual_best(source_unit: np.ndarray, target_unit: np.ndarray) -> tuple[np.n
         best_value[better] = column_value[better]
         backward[better] = start + column_best[better]
     return forward, backward
-
-
-def _sample_weights(mesh: Mesh, rows: np.ndarray) -> np.ndarray:
-    """Area each sampled vertex stands for: the vertex areas of the vertices nearest to it."""
-    nearest = cKDTree(mesh.verts[rows]).query(mesh.verts)[1]
-    return np.bincount(nearest, weights=mesh.vertex_areas, minlength=len(rows))
 
 
 def _ball_share(points: np.ndarray, flags: np.ndarray, weights: np.ndarray, radius: float) -> np.ndarray:
