@@ -98,6 +98,7 @@ def read_pair(path: Path) -> dict | None:
         "degenerate": quality["degenerate"],
         "distinct": quality["distinct"],
         "gap": quality["gap"],
+        "distortion": quality.get("distortion"),  # reported since it exists, not yet judged
         "sparse_error": (report.get("geodesic_error") or {}).get("mean"),
         "dense_error": dense,
         "reasons": "; ".join(quality["reasons"]),
@@ -164,6 +165,16 @@ def main() -> None:
             for threshold in (0.4, 0.5, 0.6)
         }
     )
+    measured = [row for row in rows if row["distortion"] is not None]
+    if measured:  # the threshold to calibrate before the verdict judges it
+        sweep.update(
+            {
+                f"distortion>{threshold}": confusion(
+                    measured, args.bad_error, lambda row, t=threshold: row["distortion"] > t
+                )
+                for threshold in (0.05, 0.08, 0.12, 0.2)
+            }
+        )
     print(json.dumps({"confusion": tables, "mirror_threshold_sweep": sweep}, indent=2))
     write_rows(
         Path(args.out).with_suffix(".json"), rows, {"confusion": tables, "mirror_threshold_sweep": sweep}

@@ -571,6 +571,22 @@ def test_quality_verdict_flags_a_mirror_image_and_a_collapse():
     assert unproven["verdict"] == "suspect" and "gap" in unproven["reasons"][0]
 
 
+def test_distortion_counts_distances_a_map_changes_whatever_the_unit():
+    from spidermatch.eval.quality import distortion
+
+    grid = trimesh.creation.icosphere(subdivisions=2)
+    source = Mesh(grid.vertices * [2.0, 1.0, 1.0], grid.faces, "source")
+    identity = np.arange(source.n_verts)
+    assert distortion(source, source, identity) == 0.0
+    in_millimetres = Mesh(source.verts * 1000.0, source.faces, "mm")
+    assert distortion(source, in_millimetres, identity) == 0.0
+    # half of the vertices sent to the far end of the target: their distances change
+    order = np.argsort(source.verts[:, 0])
+    scrambled = identity.copy()
+    scrambled[order[: source.n_verts // 2]] = order[::-1][: source.n_verts // 2]
+    assert distortion(source, source, scrambled) > 0.2
+
+
 def test_every_run_ends_with_one_summary_line(tmp_path, caplog):
     import logging
 

@@ -19,6 +19,14 @@ Collapse
 Not proven
     A time-limited run whose gap stays large: ``gap``.
 
+One more figure is reported but not yet judged (its threshold awaits a calibration on whole
+shapes): ``distortion``, the share of sampled pairs of source vertices whose geodesic distance
+the map changes by more than half (:func:`distortion`). A right map between two poses of one
+body keeps distances, a part mapped onto the wrong region does not, while its triangles may
+still face the right way and its targets stay distinct. Measured on FAUST_r partial-to-full
+runs (docs/partial.md, "Telling a wrong partial map"), where the verdict flagged one of nine
+wrong maps.
+
 The thresholds were calibrated on pairs with ground truth (``bench/bench_quality.py``,
 ``bench/results/quality_verdict_calibration*``): each separates the correct maps (mean error
 below 0.1) from the wrong ones in its figure, mirror images in ``mirror``, collapsed maps in
@@ -32,6 +40,7 @@ import math
 import numpy as np
 
 from spidermatch.eval.metrics import vertex_map_consistency
+from spidermatch.geometry.geodesics import GeodesicDistances
 from spidermatch.geometry.mesh import Mesh
 
 MIRROR_SUSPECT = 0.3
@@ -42,6 +51,15 @@ DISTINCT_SUSPECT = 0.45
 
 GAP_SUSPECT = 0.2
 """Relative gap above which an unproven matching is called suspect."""
+
+DISTORTION_SOURCES = 40
+"""Source vertices (drawn with a fixed seed) whose geodesic distances :func:`distortion` compares."""
+
+DISTORTED = 0.5
+"""Relative change of a geodesic distance above which :func:`distortion` counts the pair."""
+
+NEAR_QUANTILE = 0.2
+"""Pairs closer than this quantile of a source vertex's distances are left out (decimation noise)."""
 
 
 def assess(low_source: Mesh, low_target: Mesh, low_map: np.ndarray, gap: float | None) -> dict:
@@ -60,7 +78,8 @@ def assess(low_source: Mesh, low_target: Mesh, low_map: np.ndarray, gap: float |
     -------
     dict
         ``verdict`` ("plausible" or "suspect"), ``reasons`` (list of str) and the figures
-        ``mirror``, ``flipped``, ``degenerate``, ``tears``, ``distinct``, ``gap``.
+        ``mirror``, ``flipped``, ``degenerate``, ``tears``, ``distinct``, ``gap``,
+        ``distortion``.
 
     """
     low_map = np.asarray(low_map, dtype=np.int64)
@@ -73,8 +92,51 @@ def assess(low_source: Mesh, low_target: Mesh, low_map: np.ndarray, gap: float |
         "tears": round(consistency.tears, 4),
         "distinct": round(np.unique(low_map).size / max(low_map.size, 1), 4),
         "gap": gap if gap is None or math.isfinite(gap) else None,
+        "distortion": round(distortion(low_source, low_target, low_map), 4),
     }
     return {**judge(figures), **figures}
+
+
+def distortion(source: Mesh, target: Mesh, vertex_map: np.ndarray, seed: int = 0) -> float:
+    """Share of sampled source vertex pairs whose geodesic distance the map changes by more than half.
+
+    From each of :data:`DISTORTION_SOURCES` source vertices (a seeded draw) the geodesic
+    distances to every source vertex are compared with those between their images on the
+    target. The ratios are divided by their median, so that a pair of meshes in two units, or
+    a part measured in its whole's unit, is judged alike; a pair counts when its scaled ratio
+    is off 1 by more than :data:`DISTORTED`. Pairs closer than the :data:`NEAR_QUANTILE` of
+    each source vertex's distances are left out.
+
+    Parameters
+    ----------
+    source, target : Mesh
+        The meshes the map joins (V_X and V_Y vertices).
+    vertex_map : np.ndarray, shape (V_X,)
+        Target vertex of each source vertex.
+    seed : int
+
+    Returns
+    -------
+    float
+        In [0, 1]; 0 for a map that keeps every sampled distance up to a common scale.
+
+    """
+    vertex_map = np.asarray(vertex_map, dtype=np.int64)
+    chosen = np.random.default_rng(seed).choice(
+        source.n_verts, min(DISTORTION_SOURCES, source.n_verts), replace=False
+    )
+    on_source, on_target = GeodesicDistances(source), GeodesicDistances(target)
+    ratios = []
+    for vertex in chosen:
+        along_source = on_source.from_vertex(int(vertex))
+        along_target = on_target.from_vertex(int(vertex_map[vertex]))[vertex_map]
+        far = along_source > max(np.quantile(along_source, NEAR_QUANTILE), 0.0)
+        ratios.append(along_target[far] / along_source[far])
+    ratios = np.concatenate(ratios)
+    scale = np.median(ratios) if ratios.size else 0.0
+    if scale <= 0:  # a collapsed map: ``distinct`` says it
+        return 1.0
+    return float(np.mean(np.abs(ratios / scale - 1.0) > DISTORTED))
 
 
 def judge(figures) -> dict:
