@@ -47,7 +47,11 @@ from spidermatch.eval.errors import pointwise_geodesic_errors
 from spidermatch.geometry.io import load_mesh
 from spidermatch.geometry.mesh import Mesh
 
-COLUMNS = ("part", "target", "kept_area", "mode", "status", "gap", "solve_s", "total_s", "dense_error", "iou")
+COLUMNS = (
+    "part", "target", "kept_area", "mode", "status", "gap", "solve_s", "total_s", "dense_error", "iou",
+    "verdict", "distortion",
+)  # fmt: skip
+BAD_ERROR = 0.1  # a dense error above this is a wrong map (a misplaced or mirrored part)
 OVERLAP_COLUMNS = (*COLUMNS, "source_iou", "overlap_mapped")
 
 
@@ -110,6 +114,8 @@ def _timed_match(source: Mesh, target: Mesh, args, extractor, partial: str, row:
         gap=result.gap,
         solve_s=round(result.timings.get("solve", float("nan")), 1),
     )
+    if result.quality:  # the verdict without ground truth, to set beside the error
+        row.update(verdict=result.quality["verdict"], distortion=result.quality["distortion"])
     return result
 
 
@@ -190,6 +196,18 @@ def _overlap_figures(rows: list[dict]) -> dict:
     }
 
 
+def _verdict_counts(scored: list[dict]) -> dict:
+    """Runs with a wrong map (dense error above BAD_ERROR) and how many of each kind were called suspect."""
+    judged = [row for row in scored if "verdict" in row]
+    bad = [row for row in judged if row["dense_error"] > BAD_ERROR]
+    good = [row for row in judged if row["dense_error"] <= BAD_ERROR]
+    return {
+        "runs_bad": len(bad),
+        "suspect_among_bad": sum(row["verdict"] == "suspect" for row in bad),
+        "suspect_among_good": sum(row["verdict"] == "suspect" for row in good),
+    }
+
+
 def _median(rows: list[dict], key: str) -> float | None:
     return round(statistics.median(row[key] for row in rows), 4) if rows else None
 
@@ -211,6 +229,7 @@ def summary(rows: list[dict]) -> dict:
             "mean_dense_error": _mean(scored, "dense_error"),
             "mean_iou": _mean(scored, "iou"),
             "median_dense_error": _median(scored, "dense_error"),
+            **_verdict_counts(scored),
             **(_overlap_figures(group) if any("source_iou" in r for r in group) else {}),
         }
 

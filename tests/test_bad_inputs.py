@@ -572,7 +572,7 @@ def test_quality_verdict_flags_a_mirror_image_and_a_collapse():
 
 
 def test_distortion_counts_distances_a_map_changes_whatever_the_unit():
-    from spidermatch.eval.quality import distortion
+    from spidermatch.eval.quality import assess, distortion
 
     grid = trimesh.creation.icosphere(subdivisions=2)
     source = Mesh(grid.vertices * [2.0, 1.0, 1.0], grid.faces, "source")
@@ -585,6 +585,10 @@ def test_distortion_counts_distances_a_map_changes_whatever_the_unit():
     scrambled = identity.copy()
     scrambled[order[: source.n_verts // 2]] = order[::-1][: source.n_verts // 2]
     assert distortion(source, source, scrambled) > 0.2
+    verdict = assess(source, source, scrambled, 1e-4)
+    assert verdict["verdict"] == "suspect" and any("geodesic distances" in r for r in verdict["reasons"])
+    collapsed = assess(source, source, np.zeros(source.n_verts, dtype=int), 1e-4)
+    assert collapsed["distortion"] == 1.0 and not any("geodesic" in r for r in collapsed["reasons"])
 
 
 def test_every_run_ends_with_one_summary_line(tmp_path, caplog):

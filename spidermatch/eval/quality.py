@@ -1,7 +1,7 @@
 """A verdict on a matching without ground truth: is it plausible, or suspect and why.
 
 The certificate says that no matching is cheaper for the chosen costs; it cannot say that
-the costs picked the right correspondence. Three symptoms of a wrong one are visible
+the costs picked the right correspondence. Four symptoms of a wrong one are visible
 without ground truth, on the certified low-resolution map itself:
 
 Mirror image (symmetric flip)
@@ -16,21 +16,21 @@ Collapse
     A matching that sends many source vertices onto few target vertices (the trivial
     stay path, or costs that do not discriminate): ``distinct`` is the share of distinct
     target vertices among the matches.
+Misplaced region
+    A part of the source laid onto the wrong part of the target (a scan's torso onto a
+    leg) keeps its triangles facing the right way and its targets distinct, but not its
+    distances: ``distortion`` is the share of sampled pairs of source vertices whose
+    geodesic distance the map changes by more than half (:func:`distortion`). A right map
+    between two poses of one body keeps them.
 Not proven
     A time-limited run whose gap stays large: ``gap``.
-
-One more figure is reported but not yet judged (its threshold awaits a calibration on whole
-shapes): ``distortion``, the share of sampled pairs of source vertices whose geodesic distance
-the map changes by more than half (:func:`distortion`). A right map between two poses of one
-body keeps distances, a part mapped onto the wrong region does not, while its triangles may
-still face the right way and its targets stay distinct. Measured on FAUST_r partial-to-full
-runs (docs/partial.md, "Telling a wrong partial map"), where the verdict flagged one of nine
-wrong maps.
 
 The thresholds were calibrated on pairs with ground truth (``bench/bench_quality.py``,
 ``bench/results/quality_verdict_calibration*``): each separates the correct maps (mean error
 below 0.1) from the wrong ones in its figure, mirror images in ``mirror``, collapsed maps in
-``distinct`` and ``gap`` (measurements: bench/README.md, solver constants).
+``distinct`` and ``gap``, misplaced parts of partial scans in ``distortion``
+(``bench/results/quality_verdict_partial_to_full_*``; measurements: bench/README.md, solver
+constants).
 """
 
 from __future__ import annotations
@@ -60,6 +60,9 @@ DISTORTED = 0.5
 
 NEAR_QUANTILE = 0.2
 """Pairs closer than this quantile of a source vertex's distances are left out (decimation noise)."""
+
+DISTORTION_SUSPECT = 0.06
+"""Share of distorted pairs (:func:`distortion`) above which the map is called misplaced."""
 
 
 def assess(low_source: Mesh, low_target: Mesh, low_map: np.ndarray, gap: float | None) -> dict:
@@ -140,7 +143,7 @@ def distortion(source: Mesh, target: Mesh, vertex_map: np.ndarray, seed: int = 0
 
 
 def judge(figures) -> dict:
-    """``verdict`` and ``reasons`` from the figures ``mirror``, ``distinct`` and ``gap`` (a mapping)."""
+    """``verdict`` and ``reasons`` from the figures ``mirror``, ``distinct``, ``distortion`` and ``gap``."""
     reasons = []
     if figures["mirror"] > MIRROR_SUSPECT:
         reasons.append(
@@ -151,6 +154,12 @@ def judge(figures) -> dict:
         reasons.append(
             f"only {figures['distinct']:.0%} of the matched target vertices are distinct: the matching "
             "collapses (e.g. the trivial stay path)"
+        )
+    collapsed = figures["distinct"] < DISTINCT_SUSPECT  # then every distance shrinks: said once
+    if (figures.get("distortion") or 0.0) > DISTORTION_SUSPECT and not collapsed:  # None: not measured
+        reasons.append(
+            f"the map changes {figures['distortion']:.0%} of the sampled geodesic distances by more "
+            "than half: likely a region laid onto the wrong part of the target"
         )
     gap = figures.get("gap")
     if gap is not None and math.isfinite(gap) and gap > GAP_SUSPECT:
