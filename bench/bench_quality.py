@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 from bench_scaling import write_rows  # noqa: E402
 
 sys.path.insert(0, str(ROOT))
-from spidermatch.eval.quality import judge  # noqa: E402
+from spidermatch.eval.quality import DISTORTION_SUSPECT, judge  # noqa: E402
 
 
 def pair_list(data: Path, n_pairs: int, within: str, seed: int) -> list[tuple[str, str]]:
@@ -166,13 +166,13 @@ def main() -> None:
         }
     )
     measured = [row for row in rows if row["distortion"] is not None]
-    if measured:  # DISTORTION_SUSPECT is 0.06
+    if measured:  # around the verdict's threshold
         sweep.update(
             {
                 f"distortion>{threshold}": confusion(
                     measured, args.bad_error, lambda row, t=threshold: row["distortion"] > t
                 )
-                for threshold in (0.04, 0.05, 0.06, 0.08, 0.12)
+                for threshold in sorted({0.04, 0.05, DISTORTION_SUSPECT, 0.08, 0.12})
             }
         )
     print(json.dumps({"confusion": tables, "mirror_threshold_sweep": sweep}, indent=2))
