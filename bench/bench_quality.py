@@ -99,6 +99,7 @@ def read_pair(path: Path) -> dict | None:
         "distinct": quality["distinct"],
         "gap": quality["gap"],
         "distortion": quality.get("distortion"),  # None in a result.json written before the figure existed
+        "distortion_judged": quality.get("distortion_judged", True),
         "sparse_error": (report.get("geodesic_error") or {}).get("mean"),
         "dense_error": dense,
         "reasons": "; ".join(quality["reasons"]),

@@ -589,6 +589,15 @@ def test_distortion_counts_distances_a_map_changes_whatever_the_unit():
     assert verdict["verdict"] == "suspect" and any("geodesic distances" in r for r in verdict["reasons"])
     collapsed = assess(source, source, np.zeros(source.n_verts, dtype=int), 1e-4)
     assert collapsed["distortion"] == 1.0 and not any("geodesic" in r for r in collapsed["reasons"])
+    # a target with a hole (partial-to-partial): reported, not judged
+    open_faces = grid.faces[np.all(grid.vertices[grid.faces][:, :, 2] < 0.8, axis=1)]
+    used = np.unique(open_faces)
+    holed = Mesh(source.verts[used], np.searchsorted(used, open_faces), "holed")
+    inside = identity[: holed.n_verts]
+    scrambled_on_holed = inside[::-1].copy()
+    holed_verdict = assess(holed, holed, scrambled_on_holed, 1e-4)
+    assert holed_verdict["distortion"] > 0.06 and holed_verdict["distortion_judged"] is False
+    assert not any("geodesic" in r for r in holed_verdict["reasons"])
 
 
 def test_every_run_ends_with_one_summary_line(tmp_path, caplog):
