@@ -131,14 +131,11 @@ def distortion(source: Mesh, target: Mesh, vertex_map: np.ndarray, seed: int = 0
     chosen = np.random.default_rng(seed).choice(
         source.n_verts, min(DISTORTION_SOURCES, source.n_verts), replace=False
     )
-    on_source, on_target = GeodesicDistances(source), GeodesicDistances(target)
-    ratios = []
-    for vertex in chosen:
-        along_source = on_source.from_vertex(int(vertex))
-        along_target = on_target.from_vertex(int(vertex_map[vertex]))[vertex_map]
-        far = along_source > max(np.quantile(along_source, NEAR_QUANTILE), 0.0)
-        ratios.append(along_target[far] / along_source[far])
-    ratios = np.concatenate(ratios)
+    along_source = GeodesicDistances(source).from_vertices(chosen)  # (S, V_X)
+    along_target = GeodesicDistances(target).from_vertices(vertex_map[chosen])[:, vertex_map]
+    near = np.maximum(np.quantile(along_source, NEAR_QUANTILE, axis=1, keepdims=True), 0.0)
+    far = along_source > near
+    ratios = along_target[far] / along_source[far]
     scale = np.median(ratios) if ratios.size else 0.0
     if scale <= 0:  # a collapsed map: ``distinct`` says it
         return 1.0
