@@ -69,15 +69,10 @@ def area_iou(target: Mesh, predicted: np.ndarray, truth: np.ndarray) -> float:
 
 def run_pair(part_name: str, parts: Path, folder: ShapeFolder, target_name: str, args, extractor) -> dict:
     """Match one part to one whole shape and score it."""
-    manifest = {row["part"]: row for row in json.loads((parts / "partial.json").read_text())["parts"]}
-    entry = manifest[part_name]
-    part = load_mesh(parts / "off" / f"{part_name}.off")
-    to_original = np.load(parts / "maps" / f"{part_name}.npy")
-    whole, target = folder.load(entry["shape"]), folder.load(target_name)
-    position = -np.ones(whole.mesh.n_verts, dtype=np.int64)
-    position[to_original] = np.arange(to_original.size)
+    part, to_original, whole, position, kept_area = load_part(parts, folder, part_name)
+    target = folder.load(target_name)
     kept_rows = position[whole.corr] >= 0
-    row = {"part": part_name, "target": target_name, "kept_area": entry["kept_area"]}
+    row = {"part": part_name, "target": target_name, "kept_area": kept_area}
     result = _timed_match(
         part, target.mesh, args, extractor, "auto" if args.mode == "partial" else "off", row
     )
@@ -157,20 +152,37 @@ class PartPair:
     kept_area: float  # the first part's share of its whole's area
 
 
+def load_part(parts: Path, folder: ShapeFolder, name: str) -> tuple:
+    """One part of ``make_partial.py``'s output and where it lies in its whole shape.
+
+    Returns
+    -------
+    part : Mesh
+    to_original : np.ndarray, shape (V_part,)
+        Vertex of the whole shape each part vertex came from.
+    whole : the whole shape (mesh and reference points)
+    position : np.ndarray, shape (V_whole,)
+        Part index of each whole vertex, -1 where cut away.
+    kept_area : float
+        The part's share of the whole's area.
+
+    """
+    entry = {row["part"]: row for row in json.loads((parts / "partial.json").read_text())["parts"]}[name]
+    to_original = np.load(parts / "maps" / f"{name}.npy")
+    whole = folder.load(entry["shape"])
+    position = -np.ones(whole.mesh.n_verts, dtype=np.int64)
+    position[to_original] = np.arange(to_original.size)
+    return load_mesh(parts / "off" / f"{name}.off"), to_original, whole, position, entry["kept_area"]
+
+
 def part_pair(parts: Path, folder: ShapeFolder, names: tuple[str, str]) -> PartPair:
     """Two parts of ``make_partial.py``'s output and their true overlap (both kept the reference point)."""
-    manifest = {row["part"]: row for row in json.loads((parts / "partial.json").read_text())["parts"]}
-    meshes = [load_mesh(parts / "off" / f"{name}.off") for name in names]
-    to_original = [np.load(parts / "maps" / f"{name}.npy") for name in names]
-    wholes = [folder.load(manifest[name]["shape"]) for name in names]
-    positions = []
-    for whole, kept in zip(wholes, to_original):
-        position = -np.ones(whole.mesh.n_verts, dtype=np.int64)
-        position[kept] = np.arange(kept.size)
-        positions.append(position)
+    meshes, to_original, wholes, positions, kept_areas = zip(*(load_part(parts, folder, n) for n in names))
     shared = (positions[0][wholes[0].corr] >= 0) & (positions[1][wholes[1].corr] >= 0)
     truths = [_part_truth(*items, shared) for items in zip(meshes, wholes, to_original)]
-    return PartPair(meshes, to_original, wholes, positions, shared, truths, manifest[names[0]]["kept_area"])
+    return PartPair(
+        list(meshes), list(to_original), list(wholes), list(positions), shared, truths, kept_areas[0]
+    )
 
 
 def overlap_shares(parts: Path, folder: ShapeFolder, names: tuple[str, str]) -> tuple[float, float]:
