@@ -75,9 +75,10 @@ def test_one_row_per_source_vertex_and_certified_matches_kept(creature_pair, wks
     else:
         assert np.array_equal(dense.vertex[low_x.to_full], low_y.to_full[low_map])
     assert np.allclose(dense.bary.sum(axis=1), 1.0) and (dense.bary >= -1e-12).all()
-    # The vertex is a corner of the image point's face or, unfolded, a neighbour of one.
-    rings = vertex_rings(y.mesh)[y.mesh.faces[dense.face]].reshape(n, -1)
-    assert (rings == dense.vertex[:, None]).any(axis=1).all()
+    # The vertex is a corner of the image point's face or, unfolded, within two edges of one.
+    ring = vertex_rings(y.mesh)
+    two_rings = ring[ring[y.mesh.faces[dense.face]]].reshape(n, -1)
+    assert (two_rings == dense.vertex[:, None]).any(axis=1).all()
 
 
 def test_dense_map_beats_the_features_nearest_neighbours(creature_pair, wks_features):
@@ -168,6 +169,50 @@ def test_unfolding_leaves_fewer_flipped_image_triangles_and_keeps_the_fixed_vert
     refs = np.arange(0, x.mesh.n_verts, 3)
     errors = geodesic_errors({"before": rounded.vertex, "after": unfolded}, refs, truth[refs], y.mesh)
     assert errors["after"].mean() < errors["before"].mean() + 0.005  # a neighbour, not a jump
+
+
+def test_rounding_sees_an_image_edge_that_is_short_in_space_but_long_along_the_target():
+    from spidermatch.dense.unfold import _Rounding, _stretched_edges
+    from spidermatch.geometry.mesh import mean_incident_edge_length
+    from spidermatch.geometry.operators import vertex_normals
+    from spidermatch.geometry.surface import vertex_face_table
+    from tests.test_metrics import hairpin_strip
+
+    strip, index = hairpin_strip()  # two arms 0.02 apart in space, about 2 apart along the strip
+    vertex = np.arange(strip.n_verts)
+    moved = index[50, 10]
+    vertex[moved] = index[-51, 10]  # onto the facing vertex of the other arm
+    context = _Rounding(
+        strip,
+        strip,
+        vertex_normals(strip.verts, strip.faces),
+        vertex_rings(strip),
+        vertex_face_table(strip),
+        vertex_rings(strip),
+        mean_incident_edge_length(strip),
+    )
+    stretched = _stretched_edges(strip.edges, vertex, context)
+    touches = (strip.edges == moved).any(axis=1)
+    images = strip.verts[vertex[strip.edges]]  # (E, 2, 3)
+    gap = np.linalg.norm(images[:, 0] - images[:, 1], axis=1)
+    assert (gap[touches] < context.threshold).all()  # in space, no image edge is too long
+    assert stretched[touches].all() and not stretched[~touches].any()
+
+
+def test_independent_groups_cover_the_vertices_once_and_hold_no_edge(creature_pair):
+    from spidermatch.dense.unfold import independent_groups
+
+    mesh = creature_pair[0].mesh
+    vertices = np.arange(0, mesh.n_verts, 2)  # about half, so some of their edges join two of them
+    groups = independent_groups(vertices, mesh.edges, mesh.n_verts)
+    label = np.full(mesh.n_verts, -1)
+    for number, group in enumerate(groups):
+        assert (label[group] == -1).all()
+        label[group] = number
+    np.testing.assert_array_equal(np.flatnonzero(label >= 0), vertices)
+    both = (label[mesh.edges] >= 0).all(axis=1)
+    assert both.sum() > 100 and (label[mesh.edges[both, 0]] != label[mesh.edges[both, 1]]).all()
+    assert len(groups) < 20
 
 
 def test_zoomout_keeps_the_identity_of_a_shape_onto_itself():

@@ -48,8 +48,9 @@ class DenseSettings:
     inverse : bool
         Also map every target vertex back onto the source (:func:`inverse_map`).
     unfold : bool
-        Round the image points to target vertices without folds where a neighbouring vertex
-        avoids one (:mod:`spidermatch.dense.unfold`); else each takes its nearest corner.
+        Round the image points to target vertices without folds or tears where a vertex
+        within two edges avoids one (:mod:`spidermatch.dense.unfold`); else each takes its
+        nearest corner.
 
     """
 

@@ -6,12 +6,15 @@ nearest vertex folds image triangles where neighbouring image points lie within 
 target edge of each other: rounding can put three nearby points' vertices in the wrong
 order, and the image triangle then faces against the target (a flip, see
 :mod:`spidermatch.eval.metrics`); rounding the two ends of an edge apart can tear it. Here the
-vertices of flipped image triangles and of stretched image edges (longer in space than the
-tear threshold and than :data:`STRETCH` times the source edge) may move to a neighbour of
+vertices of flipped image triangles and of stretched image edges (longer than the tear
+threshold and than :data:`STRETCH` times the source edge, measured as the tear figure
+measures a vertex map: along the target's edges) may move to any vertex within two edges of
 their nearest vertex, one source vertex at a time, when that leaves fewer of their image
 triangles flipped plus image edges stretched; among equally good choices the one nearest
 to the image point wins, measured in local target edge lengths and weighted by
-:data:`DISTANCE_WEIGHT`. An image triangle whose corners share a target vertex is
+:data:`DISTANCE_WEIGHT`. On a mesh with long edges, two vertices close in space can be
+far apart along the edges, and measuring in space alone leaves such tears in place
+(docs/dense_maps.md). An image triangle whose corners share a target vertex is
 degenerate, not flipped: such collapses are what any vertex map between meshes of similar
 resolution has (the ground truth of FAUST_r has about a third), and they are counted apart.
 """
@@ -24,6 +27,7 @@ import numpy as np
 
 from spidermatch.eval.metrics import TEAR_THRESHOLD, oriented_triangles
 from spidermatch.geometry.coarse import vertex_rings
+from spidermatch.geometry.graph_distance import farther_than, greedy_path_lengths
 from spidermatch.geometry.mesh import Mesh, mean_incident_edge_length
 from spidermatch.geometry.operators import vertex_normals
 from spidermatch.geometry.surface import vertex_face_table
@@ -36,6 +40,9 @@ STRETCH = 2.0
 
 SWEEPS = 2
 """Passes over the vertices of flipped image triangles."""
+
+CHOICE_CELLS = 2_000_000
+"""Choices times faces (or neighbours) weighed at once at most, when a group chooses its vertices."""
 
 
 def flipped_triangles(images: np.ndarray, target: Mesh, normals: np.ndarray) -> np.ndarray:
@@ -91,6 +98,7 @@ def unfolded_vertices(
         vertex_normals(target.verts, target.faces),
         vertex_rings(target),
         vertex_face_table(source),
+        vertex_rings(source),
         mean_incident_edge_length(target),
     )
     movable = np.ones(source.n_verts, dtype=bool)
@@ -100,9 +108,44 @@ def unfolded_vertices(
         flipped = flipped_triangles(vertex[source.faces], target, context.normals)
         stretched = _stretched_edges(source.edges, vertex, context)
         candidates = np.union1d(source.faces[flipped], source.edges[stretched])
-        for i in candidates[movable[candidates]]:
-            vertex[i] = _best_choice(context, vertex, i, nearest[i], points[i])
+        for group in independent_groups(candidates[movable[candidates]], source.edges, source.n_verts):
+            vertex[group] = _best_choices(context, vertex, group, nearest[group], points[group])
     return vertex
+
+
+def independent_groups(vertices: np.ndarray, edges: np.ndarray, n_verts: int) -> list[np.ndarray]:
+    """``vertices`` split into groups of which no two members share an edge, in the order to decide them.
+
+    Each round takes the vertices that outrank every neighbour still left (a fixed random
+    rank), so a group's members can choose at once: none of them looks at another's choice.
+
+    Parameters
+    ----------
+    vertices : np.ndarray, shape (N,), int
+    edges : np.ndarray, shape (E, 2), int
+    n_verts : int
+
+    Returns
+    -------
+    list of np.ndarray
+        Disjoint groups whose union is ``vertices``.
+
+    """
+    left = np.zeros(n_verts, dtype=bool)
+    left[vertices] = True
+    rank = np.random.default_rng(0).permutation(n_verts)
+    edges = edges[left[edges[:, 0]] & left[edges[:, 1]]]
+    groups = []
+    while left.any():
+        edges = edges[left[edges[:, 0]] & left[edges[:, 1]]]
+        outranked = np.zeros(n_verts, dtype=bool)
+        first_lower = rank[edges[:, 0]] < rank[edges[:, 1]]
+        outranked[edges[first_lower, 0]] = True
+        outranked[edges[~first_lower, 1]] = True
+        group = np.flatnonzero(left & ~outranked)
+        groups.append(group)
+        left[group] = False
+    return groups
 
 
 @dataclass(frozen=True)
@@ -114,6 +157,7 @@ class _Rounding:
     normals: np.ndarray  # (V_Y, 3) target vertex normals
     rings: np.ndarray  # (V_Y, 1 + max degree) each target vertex and its neighbours
     around: np.ndarray  # (V_X, max faces) source faces at each source vertex, -1 padded
+    neighbours: np.ndarray  # (V_X, 1 + max degree) each source vertex and its neighbours
     local_edge: np.ndarray  # (V_Y,) mean edge length at each target vertex
 
     def allowed_length(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -123,28 +167,148 @@ class _Rounding:
         """
         scale = np.sqrt(self.target.area / self.source.area)
         own = np.linalg.norm(self.source.verts[a] - self.source.verts[b], axis=-1) * scale
-        return np.maximum(TEAR_THRESHOLD * np.sqrt(self.target.area), STRETCH * own)
+        return np.maximum(self.threshold, STRETCH * own)
+
+    @property
+    def threshold(self) -> float:
+        """The tear threshold on the target."""
+        return TEAR_THRESHOLD * np.sqrt(self.target.area)
 
 
 def _stretched_edges(edges: np.ndarray, vertex: np.ndarray, context: _Rounding) -> np.ndarray:
-    """Source edges (E, 2) whose image vertices lie farther apart in space than allowed, bool (E,)."""
+    """Source edges (E, 2) whose image vertices lie farther apart along the target than allowed, bool (E,)."""
+    allowed = context.allowed_length(edges[:, 0], edges[:, 1])
+    return _too_far(context, vertex[edges[:, 0]], vertex[edges[:, 1]], allowed)
+
+
+def _too_far(context: _Rounding, a: np.ndarray, b: np.ndarray, allowed: np.ndarray) -> np.ndarray:
+    """Whether target vertices ``a`` (N,) and ``b`` (N,) lie farther apart along edges than ``allowed``."""
+    return farther_than(context.target, a, b, allowed, context.rings)
+
+
+def _best_choices(
+    context: _Rounding, vertex: np.ndarray, group: np.ndarray, start: np.ndarray, points: np.ndarray
+) -> np.ndarray:
+    """Target vertices for a group of source vertices no two of which are neighbours.
+
+    Each member takes, among the target vertices within two edges of its ``start``, the one
+    with the fewest flipped image triangles plus stretched image edges, then the nearest to
+    its image point; a chunk of members at a time (:data:`CHOICE_CELLS`).
+
+    Parameters
+    ----------
+    context : _Rounding
+    vertex : np.ndarray, shape (V_X,), int64
+        The current vertex map (its entries at ``group`` are not read).
+    group : np.ndarray, shape (G,), int
+    start : np.ndarray, shape (G,), int
+        Each member's nearest target vertex.
+    points : np.ndarray, shape (G, 3)
+        Each member's image point.
+
+    Returns
+    -------
+    np.ndarray, shape (G,), int64
+
+    """
+    out = np.empty(len(group), dtype=np.int64)
+    choices = _TwoRings.around(context.target, context.rings, start)
+    width = choices.vertex.shape[1] * max(context.around.shape[1], context.neighbours.shape[1])
+    step = max(1, CHOICE_CELLS // width)
+    for begin in range(0, len(group), step):
+        part = slice(begin, begin + step)
+        mine = choices.part(part)
+        cost = _flip_counts(context, vertex, group[part], mine.vertex)
+        cost += _tear_counts(context, vertex, group[part], start[part], mine)
+        distance = np.linalg.norm(context.target.verts[mine.vertex] - points[part, None], axis=2)
+        cost = np.where(
+            mine.valid, cost + DISTANCE_WEIGHT * distance / context.local_edge[mine.vertex], np.inf
+        )
+        out[part] = mine.vertex[np.arange(len(cost)), np.argmin(cost, axis=1)]
+    return out
+
+
+@dataclass(frozen=True)
+class _TwoRings:
+    """The target vertices within two edges of each of N start vertices, sorted, one row per start.
+
+    Rows shorter than the longest are padded with their start and marked invalid.
+    """
+
+    vertex: np.ndarray  # (N, C) int64
+    length: np.ndarray  # (N, C) the shortest path of at most two edges from the start
+    valid: np.ndarray  # (N, C) bool
+
+    @classmethod
+    def around(cls, target: Mesh, rings: np.ndarray, start: np.ndarray) -> _TwoRings:
+        start = np.asarray(start, dtype=np.int64)
+        middle = rings[start]  # (N, K)
+        ends = rings[middle]  # (N, K, K)
+        verts = target.verts
+        first = np.linalg.norm(verts[middle] - verts[start][:, None], axis=2)
+        length = (
+            first[:, :, None] + np.linalg.norm(verts[ends] - verts[middle][:, :, None], axis=3)
+        ).reshape(len(start), -1)
+        ends = ends.reshape(len(start), -1)
+        order = np.lexsort((length, ends))  # by vertex, then shortest first
+        ends, length = np.take_along_axis(ends, order, 1), np.take_along_axis(length, order, 1)
+        fresh = np.ones(ends.shape, dtype=bool)
+        fresh[:, 1:] = ends[:, 1:] != ends[:, :-1]
+        order = np.argsort(~fresh, axis=1, kind="stable")  # each row's distinct vertices first, in order
+        ends, length, fresh = (np.take_along_axis(a, order, 1) for a in (ends, length, fresh))
+        width = int(fresh.sum(axis=1).max())
+        ends, length, fresh = ends[:, :width], length[:, :width], fresh[:, :width]
+        return cls(np.where(fresh, ends, start[:, None]), np.where(fresh, length, 0.0), fresh)
+
+    def part(self, rows: slice) -> _TwoRings:
+        return _TwoRings(self.vertex[rows], self.length[rows], self.valid[rows])
+
+
+def _flip_counts(
+    context: _Rounding, vertex: np.ndarray, members: np.ndarray, choices: np.ndarray
+) -> np.ndarray:
+    """Flipped image triangles around each member (M,) for each of its choices (M, C), shape (M, C)."""
+    around = context.around[members]  # (M, f)
+    real = around >= 0
+    faces = context.source.faces[np.where(real, around, 0)]  # (M, f, 3)
+    own_corner = faces == members[:, None, None]
+    trial = np.where(own_corner[:, None], choices[:, :, None, None], vertex[faces][:, None])  # (M, C, f, 3)
+    flips = flipped_triangles(trial.reshape(-1, 3), context.target, context.normals).reshape(trial.shape[:3])
+    return (flips & real[:, None, :]).sum(axis=2)
+
+
+def _tear_counts(
+    context: _Rounding, vertex: np.ndarray, members: np.ndarray, start: np.ndarray, choices: _TwoRings
+) -> np.ndarray:
+    """Stretched image edges at each member (M,) for each of its choices, shape (M, C).
+
+    The distance from a choice c to a neighbour's image v lies between their distance in space
+    and the length of a path through the member's start s: (c to s within two edges) + (s to
+    v by a greedy walk). Only the pairs these two bounds leave undecided go to
+    :func:`~spidermatch.geometry.graph_distance.farther_than`.
+    """
+    neighbours = context.neighbours[members, 1:]  # (M, d), padded with the member itself
+    real = neighbours != members[:, None]
+    allowed = context.allowed_length(np.broadcast_to(members[:, None], neighbours.shape), neighbours)
+    images = vertex[neighbours]
+    from_start = np.full(neighbours.shape, np.inf)
+    from_start[real] = greedy_path_lengths(
+        context.target,
+        np.broadcast_to(start[:, None], real.shape)[real],
+        images[real],
+        allowed[real],
+        context.rings,
+    )
+    shape = (len(members), choices.vertex.shape[1], neighbours.shape[1])
     verts = context.target.verts
-    length = np.linalg.norm(verts[vertex[edges[:, 0]]] - verts[vertex[edges[:, 1]]], axis=1)
-    return length > context.allowed_length(edges[:, 0], edges[:, 1])
-
-
-def _best_choice(context: _Rounding, vertex: np.ndarray, i: int, start: int, point: np.ndarray) -> int:
-    """Source vertex ``i``'s target vertex: ``start`` or a neighbour; fewest flips and tears, then nearest."""
-    around = context.around[i]
-    faces = context.source.faces[around[around >= 0]]
-    choices = np.unique(context.rings[start])
-    trial = np.repeat(vertex[faces][None], len(choices), axis=0)  # (C, f, 3)
-    trial[:, faces == i] = choices[:, None]
-    target = context.target
-    flips = flipped_triangles(trial.reshape(-1, 3), target, context.normals)
-    neighbours = np.unique(faces[faces != i])
-    gaps = np.linalg.norm(target.verts[choices][:, None] - target.verts[vertex[neighbours]][None], axis=2)
-    tears = (gaps > context.allowed_length(np.full(len(neighbours), i), neighbours)).sum(axis=1)
-    distance = np.linalg.norm(target.verts[choices] - point, axis=1) / context.local_edge[choices]
-    cost = flips.reshape(len(choices), -1).sum(axis=1) + tears + DISTANCE_WEIGHT * distance
-    return int(choices[np.argmin(cost)])
+    apart = np.linalg.norm(verts[choices.vertex][:, :, None] - verts[images][:, None], axis=3)
+    allowed = np.broadcast_to(allowed[:, None, :], shape)
+    far = apart > allowed
+    near = choices.length[:, :, None] + from_start[:, None, :] <= allowed
+    open_ = np.flatnonzero((~far & ~near & real[:, None, :] & choices.valid[:, :, None]).ravel())
+    if open_.size:
+        a = np.broadcast_to(choices.vertex[:, :, None], shape).ravel()[open_]
+        b = np.broadcast_to(images[:, None, :], shape).ravel()[open_]
+        # Searched from the neighbours' images: fewer of them than of choices.
+        far.reshape(-1)[open_] = _too_far(context, b, a, allowed.ravel()[open_])
+    return (far & real[:, None, :]).sum(axis=2)

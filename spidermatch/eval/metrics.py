@@ -12,7 +12,8 @@ Tears
     with v_i, v_j the target vertices nearest to the two image points and o_i, o_j the
     distances to them, the edge is torn when ``d_graph(v_i, v_j) - o_i - o_j`` exceeds the
     threshold. ``d_graph`` is Dijkstra on the edge graph, stopped at the threshold plus
-    the offsets, one run per distinct image vertex (a local search: cheap). It
+    the offsets (:mod:`spidermatch.geometry.graph_distance`: exact, on the part of the
+    target within that distance of the image vertices, a block of them at a time). It
     over-estimates the geodesic distance by a few per cent on a well-shaped mesh.
 Flips
     A source triangle is flipped when its image triangle (the three image points) has a
@@ -27,19 +28,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse.csgraph import dijkstra
 
 from spidermatch.eval.errors import pointwise_geodesic_errors
 from spidermatch.geometry.geodesics import GeodesicDistances
-from spidermatch.geometry.mesh import Mesh, edge_length_graph
+from spidermatch.geometry.graph_distance import farther_than
+from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.operators import vertex_normals
 from spidermatch.geometry.surface import closest_surface_points
 
 TEAR_THRESHOLD = 0.05
 DEGENERATE_AREA = 1e-6
-# Distinct image vertices per Dijkstra call (memory: block x V_Y floats, at most DIJKSTRA_CELLS).
-DIJKSTRA_BLOCK = 512
-DIJKSTRA_CELLS = 20_000_000
 SAMPLED_FACES = 20_000  # meshes with more source faces are scored on a fixed sample of this many
 DIJKSTRA_TOTAL_CELLS = 3e9  # distances a tear count may fill (starts x V_Y), a few seconds
 
@@ -151,47 +149,8 @@ def torn_edges(
     if check.size:
         a, b = snapped[edges[check, 0]], snapped[edges[check, 1]]
         slack = offset[edges[check, 0]] + offset[edges[check, 1]]
-        graph_distance = _graph_distances(target, a, b, threshold + float(slack.max()))
-        torn[check] = graph_distance - slack > threshold
+        torn[check] = farther_than(target, a, b, threshold + slack)
     return torn
-
-
-def _graph_distances(target: Mesh, a: np.ndarray, b: np.ndarray, limit: float) -> np.ndarray:
-    """Shortest edge-graph distance from ``a[n]`` to ``b[n]`` (inf beyond ``limit``), shape (N,).
-
-    Pairs joined by one target edge (most, for a continuous map) take that edge's length,
-    which is their shortest distance on a graph of Euclidean edge lengths; the others run
-    Dijkstra, a block of starts at a time with at most :data:`DIJKSTRA_CELLS` distances held.
-    """
-    out = _edge_lengths_between(target, a, b)
-    far = np.flatnonzero(np.isnan(out))
-    if not far.size:
-        return out
-    graph = edge_length_graph(target.verts, target.edges)
-    starts, inverse = np.unique(a[far], return_inverse=True)
-    block_size = int(np.clip(DIJKSTRA_CELLS // target.n_verts, 1, DIJKSTRA_BLOCK))
-    for begin in range(0, len(starts), block_size):
-        block = starts[begin : begin + block_size]
-        rows = dijkstra(graph, directed=True, indices=block, limit=limit)  # the graph is symmetric
-        members = np.flatnonzero((inverse >= begin) & (inverse < begin + len(block)))
-        out[far[members]] = rows[inverse[members] - begin, b[far[members]]]
-    return out
-
-
-def _edge_lengths_between(target: Mesh, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Length of the target edge joining ``a[n]`` and ``b[n]`` (0 if equal, nan if not adjacent), (N,)."""
-    edges = target.edges  # sorted rows, i < j
-    keys = edges[:, 0] * target.n_verts + edges[:, 1]
-    low, high = np.minimum(a, b), np.maximum(a, b)
-    wanted = low * target.n_verts + high
-    where = np.minimum(np.searchsorted(keys, wanted), len(keys) - 1)
-    adjacent = keys[where] == wanted
-    out = np.full(len(a), np.nan)
-    out[adjacent] = np.linalg.norm(
-        target.verts[edges[where[adjacent], 0]] - target.verts[edges[where[adjacent], 1]], axis=1
-    )
-    out[a == b] = 0.0
-    return out
 
 
 def flipped_faces(

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 logger = logging.getLogger(__name__)
 
@@ -120,9 +121,15 @@ class Mesh:
         return Mesh(self.verts - self.verts.mean(axis=0), self.faces, self.name, self.notes)
 
     def edge_graph(self, augmented: bool = False) -> sp.csr_matrix:
-        """Symmetric sparse adjacency weighted by Euclidean edge length, shape (V, V)."""
+        """Symmetric adjacency weighted by Euclidean edge length, shape (V, V); cached, do not modify."""
+        key = "augmented_edge_graph" if augmented else "edge_graph"
         edges = self.augmented_edges if augmented else self.edges
-        return edge_length_graph(self.verts, edges)
+        return self._cached(key, lambda: edge_length_graph(self.verts, edges))
+
+    @property
+    def vertex_tree(self) -> cKDTree:
+        """KD-tree of the vertex positions (cached)."""
+        return self._cached("vertex_tree", lambda: cKDTree(self.verts))
 
 
 def triangle_areas(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
