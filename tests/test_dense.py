@@ -173,24 +173,13 @@ def test_unfolding_leaves_fewer_flipped_image_triangles_and_keeps_the_fixed_vert
 
 def test_rounding_sees_an_image_edge_that_is_short_in_space_but_long_along_the_target():
     from spidermatch.dense.unfold import _Rounding, _stretched_edges
-    from spidermatch.geometry.mesh import mean_incident_edge_length
-    from spidermatch.geometry.operators import vertex_normals
-    from spidermatch.geometry.surface import vertex_face_table
     from tests.test_metrics import hairpin_strip
 
     strip, index = hairpin_strip()  # two arms 0.02 apart in space, about 2 apart along the strip
     vertex = np.arange(strip.n_verts)
     moved = index[50, 10]
     vertex[moved] = index[-51, 10]  # onto the facing vertex of the other arm
-    context = _Rounding(
-        strip,
-        strip,
-        vertex_normals(strip.verts, strip.faces),
-        vertex_rings(strip),
-        vertex_face_table(strip),
-        vertex_rings(strip),
-        mean_incident_edge_length(strip),
-    )
+    context = _Rounding.between(strip, strip)
     stretched = _stretched_edges(strip.edges, vertex, context)
     touches = (strip.edges == moved).any(axis=1)
     images = strip.verts[vertex[strip.edges]]  # (E, 2, 3)

@@ -87,20 +87,12 @@ def unfolded_vertices(
     Returns
     -------
     np.ndarray, shape (V_X,), int64
-        Each entry ``vertex[i]`` or one of its target neighbours.
+        Each entry ``vertex[i]`` or a target vertex within two edges of it.
 
     """
     nearest = np.asarray(vertex, dtype=np.int64)
     vertex = nearest.copy()
-    context = _Rounding(
-        source,
-        target,
-        vertex_normals(target.verts, target.faces),
-        vertex_rings(target),
-        vertex_face_table(source),
-        vertex_rings(source),
-        mean_incident_edge_length(target),
-    )
+    context = _Rounding.between(source, target)
     movable = np.ones(source.n_verts, dtype=bool)
     if fixed is not None:
         movable[np.asarray(fixed, dtype=np.int64)] = False
@@ -159,6 +151,19 @@ class _Rounding:
     around: np.ndarray  # (V_X, max faces) source faces at each source vertex, -1 padded
     neighbours: np.ndarray  # (V_X, 1 + max degree) each source vertex and its neighbours
     local_edge: np.ndarray  # (V_Y,) mean edge length at each target vertex
+
+    @classmethod
+    def between(cls, source: Mesh, target: Mesh) -> _Rounding:
+        """The tables of a map from ``source`` to ``target``."""
+        return cls(
+            source,
+            target,
+            vertex_normals(target.verts, target.faces),
+            vertex_rings(target),
+            vertex_face_table(source),
+            vertex_rings(source),
+            mean_incident_edge_length(target),
+        )
 
     def allowed_length(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """How long the images of source edges (a, b) may be: the tear threshold or STRETCH times theirs.
