@@ -20,11 +20,13 @@ Methods (``DenseSettings.method``):
     local edge lengths by :data:`RADIUS_SHRINK` per round to :data:`LEAST_RADIUS`); then an
     as-rigid-as-possible fit of the whole source mesh to those matches
     (:mod:`spidermatch.dense.registration`, goal weight ``fit_weight`` per unit of vertex area);
-    then each fitted vertex projected onto the target near its match. The features decide
-    where the surface goes, the rigidity of the source's local shape keeps neighbouring
-    vertices together and the right way up: far fewer torn edges and flipped triangles
-    than matching each vertex on its own, and a lower error (the noise of single matches
-    averages out). The certified matches are where the search starts, not fixed points:
+    then each fitted vertex projected onto the target near where the fit put it (near its
+    match instead where the nearest target vertex lies far from the match along the
+    target's edges: another part that the fit passes close to, :func:`projection_anchors`).
+    The features decide where the surface goes, the rigidity of the source's local shape
+    keeps neighbouring vertices together and the right way up: far fewer torn edges and
+    flipped triangles than matching each vertex on its own, and a lower error (the noise of
+    single matches averages out). The certified matches are where the search starts, not fixed points:
     the low-resolution images are quantised to vertices a coarse edge apart, and pinning
     the dense map to them would put a kink at every one (``result.json`` reports how far
     the dense images of the certified vertices lie from their certified images).
@@ -66,7 +68,8 @@ from spidermatch.dense.maps import DenseMap, inverse_map
 from spidermatch.dense.registration import arap_system, fit
 from spidermatch.dense.settings import DenseSettings
 from spidermatch.dense.unfold import unfolded_vertices
-from spidermatch.geometry.coarse import ring_faces
+from spidermatch.geometry.coarse import ring_faces, vertex_rings
+from spidermatch.geometry.graph_distance import farther_than
 from spidermatch.geometry.mesh import Mesh, mean_incident_edge_length
 from spidermatch.geometry.remesh import Decimated
 from spidermatch.geometry.surface import (
@@ -91,6 +94,10 @@ LEAST_NEIGHBOURS = 16
 
 ROTATION_ROUNDS = 5
 """``deformation``: alternations of rotations and positions in each as-rigid-as-possible fit."""
+
+PROJECTION_REACH = 3.0
+"""``deformation``: how far, in search radii along the target's edges, the vertex nearest to a
+fitted position may lie from the vertex's feature match and still anchor its projection."""
 
 
 def densify(
@@ -217,6 +224,7 @@ def deformed_points(
     goal_weights = settings.fit_weight * areas / max(float(areas.mean()), np.finfo(float).tiny)
     goal_weights = np.maximum(goal_weights, settings.fit_weight * 1e-6)  # vertices on no face
     system = arap_system(source.verts * rest_scale, source.faces, goal_weights)
+    rings = vertex_rings(target)
     radius = settings.radius
     for _ in range(settings.deformation_rounds):
         # A smaller disc holds fewer vertices: search as many as cover it (the area's share).
@@ -226,14 +234,43 @@ def deformed_points(
         )
         matches = feature_refined_vertices(target, points, radius * local_edge, *features, searched)
         fitted = fit(system, target.verts[matches], points, ROTATION_ROUNDS)
-        # Projected near the vertex's own match only: a free projection jumps to another
-        # body part where two parts nearly touch.
+        anchors = projection_anchors(target, matches, fitted, PROJECTION_REACH * radius * local_edge, rings)
         face, bary = closest_triangle_points(
-            target.verts, target.faces, fitted, candidates=ring_faces(target, matches)
+            target.verts, target.faces, fitted, candidates=ring_faces(target, anchors)
         )
         points = surface_positions(target, face, bary)
         radius = max(radius * RADIUS_SHRINK, LEAST_RADIUS)
     return face, bary
+
+
+def projection_anchors(
+    target: Mesh, matches: np.ndarray, fitted: np.ndarray, reach: np.ndarray, rings: np.ndarray
+) -> np.ndarray:
+    """The target vertex around which each fitted position is projected onto the target.
+
+    The vertex nearest to the fitted position, so that the image follows the fit (which
+    keeps neighbours together), unless that vertex lies farther from the feature match
+    along the target's edges than ``reach``: then the fit passes close to another part of
+    the target (two parts nearly touching), and the match anchors the projection instead.
+
+    Parameters
+    ----------
+    target : Mesh
+    matches : np.ndarray, shape (V_X,), int64
+        Each source vertex's feature match.
+    fitted : np.ndarray, shape (V_X, 3)
+        Its position after the as-rigid-as-possible fit.
+    reach : np.ndarray, shape (V_X,)
+    rings : np.ndarray, shape (V_Y, 1 + max degree)
+        :func:`~spidermatch.geometry.coarse.vertex_rings` of the target.
+
+    Returns
+    -------
+    np.ndarray, shape (V_X,), int64
+
+    """
+    nearest = np.asarray(target.vertex_tree.query(fitted)[1], dtype=np.int64)
+    return np.where(farther_than(target, matches, nearest, reach, rings), matches, nearest)
 
 
 def smoothed(dense: DenseMap, source: Mesh, target: Mesh, fixed: np.ndarray, rounds: int) -> DenseMap:
