@@ -477,6 +477,26 @@ def test_a_mip_stops_once_stop_when_says_so():
     assert never.status == "optimal" and never.objective == pytest.approx(optimum.objective)
 
 
+def test_stop_when_is_also_asked_at_the_lp_solvers_reports_inside_a_mip():
+    """HiGHS's root node may go minutes without a MIP report: its simplex and IPM reports ask too."""
+    from types import SimpleNamespace
+
+    import highspy
+
+    from spidermatch.solve.highs import HighsSession
+
+    _, _, model = creature_instance(24, seed=3)
+    kinds = highspy.cb.HighsCallbackType
+    data_out = SimpleNamespace(simplex_iteration_count=10, running_time=0.0)
+    for relax, expected in ((False, True), (True, False)):
+        session = HighsSession(model, SolverOptions(mip_rel_gap=0.0), relax=relax)
+        session.stop_when = lambda incumbent, dual_bound: True
+        for kind in (kinds.kCallbackSimplexInterrupt, kinds.kCallbackIpmInterrupt):
+            data_in = SimpleNamespace(user_interrupt=False)
+            session._on_callback(kind, "", data_out, data_in, None)
+            assert data_in.user_interrupt is expected and session.stopped_early is expected
+
+
 def test_a_time_limit_between_cut_rounds_keeps_the_cheapest_connected_solution():
     """Not 'no solution' while a closed path is known: the cheapest connected one, marked feasible."""
     from types import SimpleNamespace

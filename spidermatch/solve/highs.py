@@ -212,11 +212,15 @@ class HighsSession:
         if kind == kinds.kCallbackMipInterrupt:
             self.last_mip = (float(data_out.mip_primal_bound), float(data_out.mip_dual_bound))
             self.progress.mip(data_out)
-            incumbent = self.best_usable if self.usable is not None else self.last_mip[0]
-            if not stop and self.stop_when is not None and self.stop_when(incumbent, self.last_mip[1]):
-                stop = self.stopped_early = True
         elif kind == kinds.kCallbackSimplexInterrupt:
             self.progress.simplex(data_out)
+        # Asked at the LP solver's reports inside a MIP too: HiGHS's root node can go minutes
+        # between MIP reports (4000 faces), and a stop that leaves time for the repair of a
+        # solution with detached cycles (spidermatch.solve.cuts) must come before the limit.
+        if not stop and not self.relax and self.stop_when is not None:
+            incumbent = self.best_usable if self.usable is not None else self.last_mip[0]
+            if self.stop_when(incumbent, self.last_mip[1]):
+                stop = self.stopped_early = True
         # always written: HiGHS keeps the flag between runs of a session, so a True left from an
         # earlier run would stop the next run at its first check
         data_in.user_interrupt = bool(stop)
