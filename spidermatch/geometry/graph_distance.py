@@ -188,8 +188,8 @@ def farther_than(
     a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
     bound = np.broadcast_to(np.asarray(bound, dtype=np.float64), a.shape)
     far = np.linalg.norm(mesh.verts[a] - mesh.verts[b], axis=1) > bound
-    walked = greedy_path_lengths(mesh, a, b, bound, rings)
-    open_ = np.flatnonzero(~far & (walked > bound))
+    near = np.flatnonzero(~far)
+    open_ = near[greedy_path_lengths(mesh, a[near], b[near], bound[near], rings) > bound[near]]
     if open_.size:
         limit = float(bound[open_].max())
         far[open_] = graph_distances_between(mesh, a[open_], b[open_], limit) > bound[open_]
