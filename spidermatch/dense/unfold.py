@@ -9,8 +9,9 @@ order, and the image triangle then faces against the target (a flip, see
 vertices of flipped image triangles and of stretched image edges (longer than the tear
 threshold and than :data:`STRETCH` times the source edge, measured as the tear figure
 measures a vertex map: along the target's edges) may move to any vertex within two edges of
-their nearest vertex, one source vertex at a time, when that leaves fewer of their image
-triangles flipped plus image edges stretched; among equally good choices the one nearest
+their nearest vertex, when that leaves fewer of their image triangles flipped plus image
+edges stretched (the vertices choose group by group, no two of a group sharing an edge, so
+that each choice sees its neighbours' current ones); among equally good choices the one nearest
 to the image point wins, measured in local target edge lengths and weighted by
 :data:`DISTANCE_WEIGHT`. On a mesh with long edges, two vertices close in space can be
 far apart along the edges, and measuring in space alone leaves such tears in place
