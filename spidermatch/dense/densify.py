@@ -68,7 +68,7 @@ from spidermatch.dense.maps import DenseMap, inverse_map
 from spidermatch.dense.registration import arap_system, fit
 from spidermatch.dense.settings import DenseSettings
 from spidermatch.dense.unfold import unfolded_vertices
-from spidermatch.geometry.coarse import ring_faces, vertex_rings
+from spidermatch.geometry.coarse import ring_faces
 from spidermatch.geometry.graph_distance import farther_than
 from spidermatch.geometry.mesh import Mesh, mean_incident_edge_length
 from spidermatch.geometry.remesh import Decimated
@@ -224,7 +224,6 @@ def deformed_points(
     goal_weights = settings.fit_weight * areas / max(float(areas.mean()), np.finfo(float).tiny)
     goal_weights = np.maximum(goal_weights, settings.fit_weight * 1e-6)  # vertices on no face
     system = arap_system(source.verts * rest_scale, source.faces, goal_weights)
-    rings = vertex_rings(target)
     radius = settings.radius
     for _ in range(settings.deformation_rounds):
         # A smaller disc holds fewer vertices: search as many as cover it (the area's share).
@@ -234,7 +233,7 @@ def deformed_points(
         )
         matches = feature_refined_vertices(target, points, radius * local_edge, *features, searched)
         fitted = fit(system, target.verts[matches], points, ROTATION_ROUNDS)
-        anchors = projection_anchors(target, matches, fitted, PROJECTION_REACH * radius * local_edge, rings)
+        anchors = projection_anchors(target, matches, fitted, PROJECTION_REACH * radius * local_edge)
         face, bary = closest_triangle_points(
             target.verts, target.faces, fitted, candidates=ring_faces(target, anchors)
         )
@@ -244,7 +243,7 @@ def deformed_points(
 
 
 def projection_anchors(
-    target: Mesh, matches: np.ndarray, fitted: np.ndarray, reach: np.ndarray, rings: np.ndarray
+    target: Mesh, matches: np.ndarray, fitted: np.ndarray, reach: np.ndarray
 ) -> np.ndarray:
     """The target vertex around which each fitted position is projected onto the target.
 
@@ -261,8 +260,6 @@ def projection_anchors(
     fitted : np.ndarray, shape (V_X, 3)
         Its position after the as-rigid-as-possible fit.
     reach : np.ndarray, shape (V_X,)
-    rings : np.ndarray, shape (V_Y, 1 + max degree)
-        :func:`~spidermatch.geometry.coarse.vertex_rings` of the target.
 
     Returns
     -------
@@ -270,7 +267,7 @@ def projection_anchors(
 
     """
     nearest = np.asarray(target.vertex_tree.query(fitted)[1], dtype=np.int64)
-    return np.where(farther_than(target, matches, nearest, reach, rings), matches, nearest)
+    return np.where(farther_than(target, matches, nearest, reach), matches, nearest)
 
 
 def smoothed(dense: DenseMap, source: Mesh, target: Mesh, fixed: np.ndarray, rounds: int) -> DenseMap:

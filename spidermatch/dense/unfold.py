@@ -189,7 +189,7 @@ def _stretched_edges(edges: np.ndarray, vertex: np.ndarray, context: _Rounding) 
 
 def _too_far(context: _Rounding, a: np.ndarray, b: np.ndarray, allowed: np.ndarray) -> np.ndarray:
     """Whether target vertices ``a`` (N,) and ``b`` (N,) lie farther apart along edges than ``allowed``."""
-    return farther_than(context.target, a, b, allowed, context.rings)
+    return farther_than(context.target, a, b, allowed)
 
 
 def _best_choices(
@@ -303,7 +303,6 @@ def _tear_counts(
         np.broadcast_to(start[:, None], real.shape)[real],
         images[real],
         allowed[real],
-        context.rings,
     )
     shape = (len(members), choices.vertex.shape[1], neighbours.shape[1])
     verts = context.target.verts

@@ -46,11 +46,19 @@ def coarse_labels(full: Mesh, low: Decimated) -> np.ndarray:
 
 
 def vertex_rings(mesh: Mesh) -> np.ndarray:
-    """Each vertex and its neighbours, shape (V, 1 + max degree), padded with the vertex itself."""
-    edges = mesh.edges
-    neighbours = padded_rows(edges.reshape(-1), edges[:, ::-1].reshape(-1), mesh.n_verts)
-    own = np.arange(mesh.n_verts)[:, None]
-    return np.hstack([own, np.where(neighbours >= 0, neighbours, own)])
+    """Each vertex and its neighbours, shape (V, 1 + max degree), padded with the vertex itself.
+
+    Kept with the mesh (read-only), like its edges: the dense map and its figures ask for the
+    target's rings in every round.
+    """
+
+    def rings() -> np.ndarray:
+        edges = mesh.edges
+        neighbours = padded_rows(edges.reshape(-1), edges[:, ::-1].reshape(-1), mesh.n_verts)
+        own = np.arange(mesh.n_verts)[:, None]
+        return np.hstack([own, np.where(neighbours >= 0, neighbours, own)])
+
+    return mesh._cached("vertex_rings", rings)
 
 
 def ring_faces(mesh: Mesh, vertices: np.ndarray) -> np.ndarray:

@@ -166,9 +166,7 @@ def _next_block(
         size = max(1, size // 2)
 
 
-def farther_than(
-    mesh: Mesh, a: np.ndarray, b: np.ndarray, bound: np.ndarray, rings: np.ndarray | None = None
-) -> np.ndarray:
+def farther_than(mesh: Mesh, a: np.ndarray, b: np.ndarray, bound: np.ndarray) -> np.ndarray:
     """Whether ``a[n]`` and ``b[n]`` lie farther apart along the mesh's edges than ``bound[n]``.
 
     Parameters
@@ -176,8 +174,6 @@ def farther_than(
     mesh : Mesh
     a, b : np.ndarray, shape (N,), int
     bound : np.ndarray, shape (N,) (or a float)
-    rings : np.ndarray, shape (V, 1 + max degree), optional
-        :func:`spidermatch.geometry.coarse.vertex_rings` of ``mesh``, if already made.
 
     Returns
     -------
@@ -189,16 +185,14 @@ def farther_than(
     bound = np.broadcast_to(np.asarray(bound, dtype=np.float64), a.shape)
     far = np.linalg.norm(mesh.verts[a] - mesh.verts[b], axis=1) > bound
     near = np.flatnonzero(~far)
-    open_ = near[greedy_path_lengths(mesh, a[near], b[near], bound[near], rings) > bound[near]]
+    open_ = near[greedy_path_lengths(mesh, a[near], b[near], bound[near]) > bound[near]]
     if open_.size:
         limit = float(bound[open_].max())
         far[open_] = graph_distances_between(mesh, a[open_], b[open_], limit) > bound[open_]
     return far
 
 
-def greedy_path_lengths(
-    mesh: Mesh, a: np.ndarray, b: np.ndarray, limit: np.ndarray, rings: np.ndarray | None = None
-) -> np.ndarray:
+def greedy_path_lengths(mesh: Mesh, a: np.ndarray, b: np.ndarray, limit: np.ndarray) -> np.ndarray:
     """Length of a path along the edges from ``a[n]`` to ``b[n]`` found by walking greedily, shape (N,).
 
     Each step goes to the neighbour nearest to ``b[n]`` in space. A walk that stops short (no
@@ -211,15 +205,13 @@ def greedy_path_lengths(
     mesh : Mesh
     a, b : np.ndarray, shape (N,), int
     limit : np.ndarray, shape (N,) (or a float)
-    rings : np.ndarray, shape (V, 1 + max degree), optional
-        :func:`spidermatch.geometry.coarse.vertex_rings` of ``mesh``.
 
     Returns
     -------
     np.ndarray, shape (N,)
 
     """
-    rings = vertex_rings(mesh) if rings is None else rings
+    rings = vertex_rings(mesh)
     verts = mesh.verts
     limit = np.broadcast_to(np.asarray(limit, dtype=np.float64), np.shape(a))
     here = np.array(a, dtype=np.int64)
