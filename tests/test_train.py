@@ -300,6 +300,7 @@ def test_real_config_composes_and_runs(tmp_path):
     faust_config, unsup_config = to_train_config(faust), to_train_config(unsup)
     partial_config = to_train_config(partial)
     assert partial_config.data.partial_copies == 6 and partial_config.loss.w_partial == 10.0
+    assert partial_config.run.n_steps == 6000 and partial_config.run.time_limit_min > 71  # one cosine
     assert partial_config.model == unsup_config.model and partial_config.optim == unsup_config.optim
     assert faust_config.model.input == "wks"
     assert unsup_config.model.input == "wks_xyz" and unsup_config.model.in_channels == 131
