@@ -184,12 +184,7 @@ class _Rounding:
 def _stretched_edges(edges: np.ndarray, vertex: np.ndarray, context: _Rounding) -> np.ndarray:
     """Source edges (E, 2) whose image vertices lie farther apart along the target than allowed, bool (E,)."""
     allowed = context.allowed_length(edges[:, 0], edges[:, 1])
-    return _too_far(context, vertex[edges[:, 0]], vertex[edges[:, 1]], allowed)
-
-
-def _too_far(context: _Rounding, a: np.ndarray, b: np.ndarray, allowed: np.ndarray) -> np.ndarray:
-    """Whether target vertices ``a`` (N,) and ``b`` (N,) lie farther apart along edges than ``allowed``."""
-    return farther_than(context.target, a, b, allowed)
+    return farther_than(context.target, vertex[edges[:, 0]], vertex[edges[:, 1]], allowed)
 
 
 def _best_choices(
@@ -315,5 +310,5 @@ def _tear_counts(
         a = np.broadcast_to(choices.vertex[:, :, None], shape).ravel()[open_]
         b = np.broadcast_to(images[:, None, :], shape).ravel()[open_]
         # Searched from the neighbours' images: fewer of them than of choices.
-        far.reshape(-1)[open_] = _too_far(context, b, a, allowed.ravel()[open_])
+        far.reshape(-1)[open_] = farther_than(context.target, b, a, allowed.ravel()[open_])
     return (far & real[:, None, :]).sum(axis=2)

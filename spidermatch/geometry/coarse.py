@@ -58,7 +58,7 @@ def vertex_rings(mesh: Mesh) -> np.ndarray:
         own = np.arange(mesh.n_verts)[:, None]
         return np.hstack([own, np.where(neighbours >= 0, neighbours, own)])
 
-    return mesh._cached("vertex_rings", rings)
+    return mesh.cached("vertex_rings", rings)
 
 
 def ring_faces(mesh: Mesh, vertices: np.ndarray) -> np.ndarray:

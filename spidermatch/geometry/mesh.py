@@ -62,7 +62,12 @@ class Mesh:
         """Number of faces F."""
         return int(self.faces.shape[0])
 
-    def _cached(self, key: str, compute):
+    def cached(self, key: str, compute):
+        """``compute()`` the first time ``key`` is asked for, then the kept value (arrays read-only).
+
+        For data derived from the mesh alone (its edges, areas, vertex rings), which the mesh
+        never changes after it is made.
+        """
         if key not in self._cache:
             value = compute()
             if isinstance(value, np.ndarray):
@@ -73,12 +78,12 @@ class Mesh:
     @property
     def face_areas(self) -> np.ndarray:
         """Area of each face, shape (F,)."""
-        return self._cached("face_areas", lambda: triangle_areas(self.verts, self.faces))
+        return self.cached("face_areas", lambda: triangle_areas(self.verts, self.faces))
 
     @property
     def area(self) -> float:
         """Total surface area."""
-        return self._cached("area", lambda: float(self.face_areas.sum()))
+        return self.cached("area", lambda: float(self.face_areas.sum()))
 
     @property
     def vertex_areas(self) -> np.ndarray:
@@ -89,12 +94,12 @@ class Mesh:
             np.add.at(areas, self.faces.reshape(-1), np.repeat(self.face_areas / 3.0, 3))
             return areas
 
-        return self._cached("vertex_areas", lumped)
+        return self.cached("vertex_areas", lumped)
 
     @property
     def edge_lengths(self) -> np.ndarray:
         """Length of each of :attr:`edges`, shape (E,)."""
-        return self._cached(
+        return self.cached(
             "edge_lengths",
             lambda: np.linalg.norm(self.verts[self.edges[:, 0]] - self.verts[self.edges[:, 1]], axis=1),
         )
@@ -102,7 +107,7 @@ class Mesh:
     @property
     def edges(self) -> np.ndarray:
         """Unique undirected mesh edges, shape (E, 2), with ``edges[:, 0] < edges[:, 1]``."""
-        return self._cached("edges", lambda: unique_edges(self.faces))
+        return self.cached("edges", lambda: unique_edges(self.faces))
 
     @property
     def augmented_edges(self) -> np.ndarray:
@@ -114,7 +119,7 @@ class Mesh:
             Unique undirected edges with ``i < j`` (method.md section 2).
 
         """
-        return self._cached("augmented_edges", lambda: augment_edges(self.faces))
+        return self.cached("augmented_edges", lambda: augment_edges(self.faces))
 
     def centred(self) -> Mesh:
         """Return a copy translated so that the mean vertex lies at the origin."""
@@ -124,12 +129,12 @@ class Mesh:
         """Symmetric adjacency weighted by Euclidean edge length, shape (V, V); cached, do not modify."""
         key = "augmented_edge_graph" if augmented else "edge_graph"
         edges = self.augmented_edges if augmented else self.edges
-        return self._cached(key, lambda: edge_length_graph(self.verts, edges))
+        return self.cached(key, lambda: edge_length_graph(self.verts, edges))
 
     @property
     def vertex_tree(self) -> cKDTree:
         """KD-tree of the vertex positions (cached)."""
-        return self._cached("vertex_tree", lambda: cKDTree(self.verts))
+        return self.cached("vertex_tree", lambda: cKDTree(self.verts))
 
 
 def triangle_areas(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
