@@ -3,9 +3,10 @@
 A network whose input includes the vertex coordinates (``xyz``, ``wks_xyz``) expects the
 orientation of its training shapes. A shape turned about the vertical axis (FAUST_r's pose-8
 scans are turned about 107 degrees) points it at the wrong side of the body. The search
-presents the shape's coordinates in ``turns`` evenly spaced turns about the vertical (y)
-axis and keeps the turn whose unsupervised functional-map loss (the training objective)
-against a reference shape in the training orientation is lowest. It reads no labels.
+presents the shape's coordinates in ``turns`` evenly spaced turns about the vertical axis
+(y for FAUST_r's people, z for TOSCA's animals: the training data's ``up_axis``) and keeps
+the turn whose unsupervised functional-map loss (the training objective) against a reference
+shape in the training orientation is lowest. It reads no labels.
 
 A shape may also arrive lying down or upside down (another up axis, a scanner's frame). With
 ``frames`` the search also tries the 24 rotations that carry the shape's principal axes onto
@@ -33,12 +34,20 @@ from spidermatch.geometry.mesh import Mesh, principal_axes
 from spidermatch.geometry.partial import rigid_fit_residual
 
 COORDINATE_INPUTS = ("xyz", "wks_xyz")
+UP_AXES = ("x", "y", "z")
 
 
-def turn_about_vertical(angle: float) -> torch.Tensor:
-    """The rotation (3, 3) by ``angle`` radians about the y (vertical) axis."""
+def turn_about_vertical(angle: float, up_axis: str = "y") -> torch.Tensor:
+    """The rotation (3, 3) by ``angle`` radians about the vertical axis ``up_axis`` (x, y or z)."""
+    if up_axis not in UP_AXES:
+        raise ValueError(f"the up axis must be one of {UP_AXES}, got {up_axis!r}")
+    up = UP_AXES.index(up_axis)
+    first, second = (up + 1) % 3, (up + 2) % 3  # right-handed: a turn carries first onto second
     cos, sin = math.cos(angle), math.sin(angle)
-    return torch.tensor([[cos, 0.0, sin], [0.0, 1.0, 0.0], [-sin, 0.0, cos]])
+    rotation = torch.eye(3)
+    rotation[first, first] = rotation[second, second] = cos
+    rotation[second, first], rotation[first, second] = sin, -sin
+    return rotation
 
 
 def rotated_coordinates(features: torch.Tensor, rotation: torch.Tensor) -> torch.Tensor:
@@ -119,12 +128,15 @@ class OrientationSearch:
     frames : bool
         Also try the 24 alignments of the shape's principal axes with the reference's
         (covers shapes lying down, upside down or in any frame).
+    up_axis : str
+        The vertical axis of the training shapes (``"x"``, ``"y"`` or ``"z"``).
     """
 
     reference: ShapeInput
     turns: int
     loss: FmapLossConfig
     frames: bool = False
+    up_axis: str = "y"
 
     def angles(self) -> list[float]:
         """The turns tried, in degrees, starting with 0."""
@@ -133,7 +145,8 @@ class OrientationSearch:
     def candidates(self, shape: ShapeInput) -> list[Orientation]:
         """Every orientation tried for ``shape``: the vertical turns, then the axis alignments."""
         found = [
-            Orientation(turn_about_vertical(math.radians(angle)).double(), angle) for angle in self.angles()
+            Orientation(turn_about_vertical(math.radians(angle), self.up_axis).double(), angle)
+            for angle in self.angles()
         ]
         if self.frames:
             ours, theirs = (
@@ -256,10 +269,11 @@ def searches_orientation(model: ModelConfig, turns: int) -> bool:
     return turns > 1 and model.input in COORDINATE_INPUTS
 
 
-def reference_payload(mesh: Mesh, turns: int) -> dict[str, Any]:
-    """What a checkpoint stores of the search: the reference mesh and the number of turns."""
+def reference_payload(mesh: Mesh, turns: int, up_axis: str = "y") -> dict[str, Any]:
+    """What a checkpoint stores of the search: the reference mesh, the number of turns and the up axis."""
     return {
         "turns": int(turns),
+        "up_axis": up_axis,
         "name": mesh.name,
         "verts": torch.from_numpy(np.array(mesh.verts)),
         "faces": torch.from_numpy(np.array(mesh.faces)),
@@ -279,7 +293,8 @@ def search_from_payload(
     Parameters
     ----------
     payload : dict
-        From :func:`reference_payload`.
+        From :func:`reference_payload` (checkpoints written before the up axis was stored
+        were all trained upright in y).
     model : ModelConfig
     loss : FmapLossConfig
     turns : int, optional
@@ -295,4 +310,5 @@ def search_from_payload(
     mesh = Mesh(
         payload["verts"].numpy(), payload["faces"].numpy(), name=str(payload.get("name", "reference"))
     )
-    return OrientationSearch(prepare_shape(mesh, model, use_cache=use_cache), turns, loss, frames)
+    reference = prepare_shape(mesh, model, use_cache=use_cache)
+    return OrientationSearch(reference, turns, loss, frames, str(payload.get("up_axis", "y")))

@@ -54,7 +54,9 @@ def test_search_turns_a_turned_shape_back(creature):
     assert torch.allclose(out_turned, expected, atol=1e-3)  # the turned shape, turned back
 
 
-def _checkpoint_with_reference(path, reference: Mesh | None, turns: int = 4, train_faces: int | None = None):
+def _checkpoint_with_reference(
+    path, reference: Mesh | None, turns: int = 4, train_faces: int | None = None, up_axis: str | None = None
+):
     from train.config import DataConfig, TrainConfig
     from train.loop import new_state, save_checkpoint
 
@@ -65,8 +67,40 @@ def _checkpoint_with_reference(path, reference: Mesh | None, turns: int = 4, tra
             block.diffusion.diffusion_time.uniform_(1e-4, 1e-2)
     state.average = None
     if reference is not None:
-        state.orientation = reference_payload(reference, turns)
+        state.orientation = reference_payload(reference, turns, up_axis or "y")
+        if up_axis is None:  # as checkpoints written before the up axis was stored
+            del state.orientation["up_axis"]
     save_checkpoint(path, state, config)
+
+
+def test_turns_are_right_handed_about_the_up_axis():
+    quarter = math.radians(90.0)
+    about_z = turn_about_vertical(quarter, "z")
+    assert torch.allclose(about_z @ torch.tensor([1.0, 0.0, 0.0]), torch.tensor([0.0, 1.0, 0.0]), atol=1e-6)
+    assert torch.allclose(about_z @ torch.tensor([0.0, 0.0, 1.0]), torch.tensor([0.0, 0.0, 1.0]))
+    about_y = turn_about_vertical(0.3, "y")  # the turn every earlier checkpoint was searched with
+    expected = torch.tensor(
+        [[math.cos(0.3), 0.0, math.sin(0.3)], [0.0, 1.0, 0.0], [-math.sin(0.3), 0.0, math.cos(0.3)]]
+    )
+    assert torch.allclose(about_y, expected)
+    with pytest.raises(ValueError, match="up axis"):
+        turn_about_vertical(quarter, "w")
+
+
+def test_extractor_turns_about_the_up_axis_its_checkpoint_stores(tmp_path, creature):
+    standing_on_z = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # carries y (up) onto z
+    animal = Mesh(creature.verts @ standing_on_z.T, creature.faces, "animal")
+    quarter_about_z = turn_about_vertical(math.radians(90.0), "z").double().numpy()
+    turned = Mesh(animal.verts @ quarter_about_z.T, animal.faces, "turned")
+    _checkpoint_with_reference(tmp_path / "z.pt", animal, up_axis="z")
+    extractor = LearnedExtractor(str(tmp_path / "z.pt"), use_cache=False, orientation_frames=False)
+    as_is, seen = extractor(animal), extractor(turned)
+    assert extractor.turns == {"animal": 0.0, "turned": 270.0}
+    assert np.abs(seen - as_is).max() < 1e-3
+    _checkpoint_with_reference(tmp_path / "old.pt", animal)  # no up axis stored: y, as before
+    about_y = LearnedExtractor(str(tmp_path / "old.pt"), use_cache=False, orientation_frames=False)
+    assert about_y.orientation.up_axis == "y"
+    assert np.abs(about_y(turned) - as_is).max() > 0.05
 
 
 @pytest.mark.parametrize("train_faces", [None, 300])  # search at full resolution / on a coarser probe
@@ -127,6 +161,6 @@ def test_training_stores_the_reference_and_validates_with_the_search(tmp_path):
     result = train(config, tmp_path)
     stored = read_checkpoint(tmp_path / "last.pt")["orientation"]
     assert result.step == 2 and 0 <= result.best_val < 1
-    assert stored["turns"] == 4 and stored["name"] == "creature_000"
+    assert stored["turns"] == 4 and stored["name"] == "creature_000" and stored["up_axis"] == "y"
     assert stored["verts"].shape[1] == 3 and stored["faces"].shape[1] == 3
     assert LearnedExtractor(str(tmp_path / "best.pt"), use_cache=False).orientation.turns == 4

@@ -297,8 +297,14 @@ def test_real_config_composes_and_runs(tmp_path):
         partial = compose(
             config_name="train", overrides=["train/experiment=faust_r_unsup_partial", "data.root=/x"]
         )
+        animals = compose(
+            config_name="train", overrides=["train/experiment=tosca_unsup_partial", "data.root=/x"]
+        )
     faust_config, unsup_config = to_train_config(faust), to_train_config(unsup)
-    partial_config = to_train_config(partial)
+    partial_config, animals_config = to_train_config(partial), to_train_config(animals)
+    assert animals_config.model.input == "wks_xyz" and animals_config.model.in_channels == 131
+    assert animals_config.data.up_axis == "z" and animals_config.data.orientation_turns == 8
+    assert animals_config.data.partial_copies == 6 and animals_config.data.val == ["cat5", "dog5", "horse5"]
     assert partial_config.data.partial_copies == 6 and partial_config.loss.w_partial == 10.0
     assert partial_config.run.n_steps == 6000 and partial_config.run.time_limit_min > 71  # one cosine
     assert partial_config.model == unsup_config.model and partial_config.optim == unsup_config.optim

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from features.diffusion_net import ModelConfig
+from features.orientation import UP_AXES
 from train.losses import LossConfig
 
 # Sections a resumed run must share with its checkpoint; ``run`` (step count,
@@ -62,6 +63,10 @@ class DataConfig:
         present each shape in this many turns about the vertical axis and keep the one whose
         unsupervised loss against the first training shape is lowest (no labels; see
         :mod:`features.orientation`). 0 turns the search off; WKS inputs ignore it.
+    up_axis : str
+        The axis the training shapes stand along (``"y"`` for FAUST_r, ``"z"`` for
+        TOSCA_animals): the orientation search turns about it. Stored in the checkpoint with
+        the search's reference.
     partial_copies : int
         Partial copies made of every training shape (plane cuts, holes and single views in
         turn; :func:`spidermatch.geometry.partial.random_cut`), for the cut-consistency term of the
@@ -82,12 +87,15 @@ class DataConfig:
     val_points: int | None = 500
     use_cache: bool = True
     orientation_turns: int = 0
+    up_axis: str = "y"
     partial_copies: int = 0
     partial_keep: Any = (0.3, 0.7)
 
     def __post_init__(self) -> None:
         if self.orientation_turns < 0:
             raise ValueError(f"data.orientation_turns must be >= 0, got {self.orientation_turns}")
+        if self.up_axis not in UP_AXES:
+            raise ValueError(f"data.up_axis must be one of {UP_AXES}, got {self.up_axis!r}")
         if self.partial_copies < 0:
             raise ValueError(f"data.partial_copies must be >= 0, got {self.partial_copies}")
         keep = list(self.partial_keep)

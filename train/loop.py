@@ -414,7 +414,7 @@ def orientation_reference(shape: TrainShape, config: TrainConfig) -> dict[str, A
     """The orientation search's checkpoint entry (the first training shape), or None when off."""
     if shape.mesh is None or not searches_orientation(config.model, config.data.orientation_turns):
         return None
-    return reference_payload(shape.mesh, config.data.orientation_turns)
+    return reference_payload(shape.mesh, config.data.orientation_turns, config.data.up_axis)
 
 
 def progress_fields(

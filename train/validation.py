@@ -179,7 +179,9 @@ def prepare_validation(
     known = {shape.name: shape for shape in train_shapes}
     orientation = None
     if searches_orientation(config.model, config.data.orientation_turns):
-        orientation = OrientationSearch(train_shapes[0].input, config.data.orientation_turns, config.loss)
+        orientation = OrientationSearch(
+            train_shapes[0].input, config.data.orientation_turns, config.loss, up_axis=config.data.up_axis
+        )
         logger.info(
             "validation: orientation search over %d turns against %s",
             config.data.orientation_turns,
