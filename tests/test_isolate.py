@@ -166,3 +166,84 @@ def test_a_match_inside_a_multiprocessing_pool_worker_has_a_solver_process_too()
 
     with multiprocessing.get_context("fork").Pool(1) as pool:
         assert pool.apply(_match_in_pool_worker, (3,)) == ("optimal", True)
+
+
+def path_and_detached_copy(lazy):
+    """The optimum of ``lazy`` (edge ids), and a copy with a detached intra-layer 2-cycle added."""
+    from spidermatch.model.correspondence import extract_path
+    from spidermatch.model.product_graph import INTRA
+    from spidermatch.solve.plain import solve_plain
+    from tests.test_ilp import edge_id
+
+    graph = lazy.graph
+    optimum = solve_plain(lazy.full_model(), graph, lazy.curve, SolverOptions(mip_rel_gap=0.0)).x
+    visited = {(int(layer), int(y)) for layer, y in extract_path(graph, optimum).layer_vertex_pairs()}
+    target_edges = graph.target_edges[: graph.target_edges.shape[0] // 2].tolist()
+    layer, a, b = next(
+        (layer, a, b)
+        for layer in range(graph.n_layers)
+        for a, b in target_edges
+        if (layer, a) not in visited and (layer, b) not in visited
+    )
+    two_cycle = [edge_id(graph, layer, a, b, INTRA), edge_id(graph, layer, b, a, INTRA)]
+    path = np.flatnonzero(optimum > 0.5)
+    return path, np.sort(np.concatenate([path, two_cycle]))
+
+
+def hanging_with_a_cheaper_detached_solution(expensive, detached, lazy, graph, curve, options):
+    """Reports an expensive closed path, then a cheaper solution with detached cycles, and hangs
+    (the MIP stuck in a phase without callbacks that 4000 faces show)."""
+    from spidermatch.solve.progress import report_detached
+
+    report_known(incumbent=float(lazy.costs(expensive).sum()), bound=0.0, path=expensive)
+    report_detached(float(lazy.costs(detached).sum()), detached)
+    time.sleep(600)
+
+
+def test_a_solver_stuck_with_a_cheaper_detached_solution_gives_way_to_its_repair_in_the_reserve(monkeypatch):
+    """The parent stops the child when the reserve begins and repairs the reported solution in a
+    fresh process: the run ends with a closed path near it, within the limit, not the stay path."""
+    from functools import partial
+
+    from spidermatch.solve.connectivity import detached_components
+    from spidermatch.solve.seeds import stay_seed
+    from tests.test_colgen import creature_lazy
+
+    lazy = creature_lazy(24, 3)
+    path, detached = path_and_detached_copy(lazy)
+    stay = np.sort(stay_seed(lazy))
+    limit = 20.0
+    monkeypatch.setattr(isolate, "parent_reserve", lambda time_limit: time_limit - 1.0)  # repair after 1 s
+    child = partial(hanging_with_a_cheaper_detached_solution, stay, detached)
+    started = time.perf_counter()
+    result = solve_isolated(child, lazy, lazy.graph, lazy.curve, SolverOptions(time_limit=limit))
+    assert time.perf_counter() - started < limit + isolate.OVERRUN_KILL_S  # within the budget
+    assert result.status == "feasible" and "repair" in result.message and result.bound == 0.0
+    assert detached_components(lazy.graph, result.x) == []
+    uses = np.flatnonzero(result.x > 0.5)
+    assert result.objective == pytest.approx(lazy.costs(uses).sum())
+    assert result.objective < lazy.costs(stay).sum()  # better than the path the child had
+    assert result.objective == pytest.approx(lazy.costs(path).sum(), rel=1e-3)  # the 2-cycle dropped
+
+
+def test_a_detached_solution_older_than_the_last_closed_path_is_left_alone(monkeypatch):
+    from functools import partial
+
+    from spidermatch.solve.progress import report_detached
+    from tests.test_colgen import creature_lazy
+
+    lazy = creature_lazy(24, 3)
+    path, detached = path_and_detached_copy(lazy)
+
+    def detached_then_path(lazy, graph, curve, options):
+        report_detached(float(lazy.costs(detached).sum()) - 1.0, detached)
+        report_known(incumbent=float(lazy.costs(path).sum()), bound=0.0, path=path)
+        time.sleep(600)
+
+    monkeypatch.setattr(isolate, "OVERRUN_KILL_S", 0.5)
+    monkeypatch.setattr(isolate, "parent_reserve", lambda time_limit: time_limit - 0.2)
+    result = solve_isolated(
+        partial(detached_then_path), lazy, lazy.graph, lazy.curve, SolverOptions(time_limit=1.0)
+    )
+    assert "past the time limit" in result.message and "repair" not in result.message
+    np.testing.assert_array_equal(np.flatnonzero(result.x), path)

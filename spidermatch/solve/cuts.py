@@ -27,7 +27,7 @@ from spidermatch.solve.connectivity import (
 )
 from spidermatch.solve.highs import HighsSession
 from spidermatch.solve.layer_flow import SessionFlows
-from spidermatch.solve.repair import REPAIR_TIME_S, REPAIR_TIME_SHARE, repair_detached
+from spidermatch.solve.repair import REPAIR_TIME_S, REPAIR_TIME_SHARE, repair_detached, stop_reserve
 from spidermatch.solve.types import SolveResult, SolverOptions, relative_gap, remaining
 
 logger = logging.getLogger(__name__)
@@ -253,7 +253,7 @@ def _leaving_time_to_repair(session: HighsSession, stop_when, options: SolverOpt
     """
     if not math.isfinite(options.time_limit):
         return stop_when
-    deadline = start + options.time_limit - min(REPAIR_TIME_S, REPAIR_TIME_SHARE * options.time_limit)
+    deadline = start + options.time_limit - stop_reserve(options.time_limit)
 
     def stop(incumbent: float, dual_bound: float) -> bool:
         if stop_when is not None and stop_when(incumbent, dual_bound):

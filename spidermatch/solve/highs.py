@@ -20,7 +20,7 @@ from spidermatch import shutdown
 from spidermatch.model.ilp import IlpModel
 from spidermatch.model.solution import used_columns
 from spidermatch.solve.interrupt import OVERRUN_GRACE_S, run_interruptibly
-from spidermatch.solve.progress import ProgressLog, report_known
+from spidermatch.solve.progress import ProgressLog, report_detached, report_known
 from spidermatch.solve.types import (
     SolveResult,
     SolverOptions,
@@ -238,6 +238,9 @@ class HighsSession:
                     report_known(incumbent=objective, path=self._full_model_path(x))  # one closed path
                 else:
                     self.best_unusable = objective
+                    edges = self._full_model_path(x)
+                    if edges is not None:
+                        report_detached(objective, edges)  # for a repair if the solver is stopped
 
     def _full_model_path(self, x: np.ndarray) -> np.ndarray | None:
         """The full-model columns (sorted ids) a 0/1 solution x (n,) of this session sets, if known."""

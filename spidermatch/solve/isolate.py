@@ -25,10 +25,19 @@ Time limit: HiGHS does not check its time limit or interrupt flag in some phases
 root analytic-centre computation, presolve). A child still solving ``OVERRUN_KILL_S``
 past the time limit is killed, and the last closed path it reported (with its solution,
 :func:`~spidermatch.solve.progress.report_known`) is the result, with the last bound.
+
+The same phases can keep the child from stopping a MIP in time to repair a solution with
+detached cycles that is much cheaper than every closed path it has (the stay path, at 4000
+faces). The child reports such solutions too
+(:func:`~spidermatch.solve.progress.report_detached`); if the last one reported is newer than
+the last closed path when only the reserve (:func:`parent_reserve`) is left, the child is
+killed and a fresh solver process repairs that solution in the reserve
+(:func:`~spidermatch.solve.repair.repair_reported`; column generation's lazy model only).
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import multiprocessing
@@ -36,12 +45,16 @@ import os
 import signal
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from spidermatch import shutdown
+from spidermatch.model.lazy_model import LazyModel
+from spidermatch.model.solution import used_columns
 from spidermatch.solve import interrupt
 from spidermatch.solve.progress import set_known_sink
+from spidermatch.solve.repair import repair_reported, stop_reserve
 from spidermatch.solve.types import SolveResult, SolverOptions, relative_gap
 
 PR_SET_PDEATHSIG = 1  # prctl(2): the signal a process gets when its parent dies
@@ -53,6 +66,16 @@ STOP_GRACE_S = 3.0  # after a forwarded signal, how long the child may take to a
 OVERRUN_KILL_S = 4.5  # how far past its time limit the solver process may run before it is killed
 # (the budget is kept within 5 s: HiGHS is interrupted at +OVERRUN_GRACE_S where it checks, the
 # process killed at +4.5 s where it does not, and the kill takes well under a second)
+
+
+def parent_reserve(time_limit: float) -> float:
+    """Seconds before ``time_limit`` at which a child stuck in HiGHS gives way to a repair.
+
+    Half the time a MIP stops before the limit to repair in the child
+    (:func:`~spidermatch.solve.repair.stop_reserve`, at most ``REPAIR_TIME_S``), so a child that
+    does stop in time has half its reserve before the parent steps in.
+    """
+    return 0.5 * stop_reserve(time_limit)
 
 
 class KnownFigures:
@@ -72,6 +95,7 @@ class KnownFigures:
         self.bound = -math.inf
         self.path: np.ndarray | None = None
         self.path_objective = math.inf
+        self.detached_objective = math.inf  # cheapest solution with detached cycles reported
 
     def update(self, incumbent: float | None, bound: float | None, path: np.ndarray | None = None) -> bool:
         """Take in a report; True if it improved either figure or the path."""
@@ -146,7 +170,9 @@ class ForkedChild:
             self.exitcode = os.waitstatus_to_exitcode(status)
 
 
-def solve_isolated(solve, model, graph, curve, options: SolverOptions) -> SolveResult:
+def solve_isolated(
+    solve, model, graph, curve, options: SolverOptions, reserve_repair: bool = True
+) -> SolveResult:
     """``solve(model, graph, curve, options)`` in a forked solver process.
 
     Where processes cannot be forked (:func:`can_isolate`), ``solve`` runs here,
@@ -158,6 +184,10 @@ def solve_isolated(solve, model, graph, curve, options: SolverOptions) -> SolveR
         E.g. ``functools.partial(solve_with_strategy, name)``; runs in the child.
     model, graph, curve, options
         Its arguments (inherited by the child through ``fork``, not pickled).
+    reserve_repair : bool
+        Repair the child's last solution with detached cycles in a reserve at the end of the
+        limit when the child is still inside HiGHS then (module docstring; ``model`` must be a
+        :class:`~spidermatch.model.lazy_model.LazyModel`, else this is off).
 
     Returns
     -------
@@ -179,8 +209,14 @@ def solve_isolated(solve, model, graph, curve, options: SolverOptions) -> SolveR
     child = ForkedChild(_child_main, (receiver, sender, solve, model, graph, curve, options))
     sender.close()
     logger.info("solver process %d started", child.pid)
+    repair_at = math.inf
+    if reserve_repair and isinstance(model, LazyModel) and math.isfinite(options.time_limit):
+        repair_at = start + options.time_limit - parent_reserve(options.time_limit)
     try:
-        return _watch(child, receiver, model, start, options)
+        result, reports = _watch(child, receiver, model, start, options, repair_at)
+        if result is None:  # stopped at repair_at for the repair
+            result = _repaired_in_reserve(reports, model, graph, curve, start, options)
+        return result
     finally:
         receiver.close()
         if child.is_alive():
@@ -207,7 +243,13 @@ def _child_main(receiver, sender, solve, model, graph, curve, options) -> None:
                 new_path = known.path if known.path is not had else None  # a path is sent once
                 sender.send(("known", known.as_dict(), new_path, known.path_objective))
 
-    set_known_sink(sink)
+    def detached_sink(objective, edges) -> None:  # called from HiGHS's callbacks, on the solver thread
+        with lock:
+            if objective < min(known.detached_objective, known.path_objective):
+                known.detached_objective = float(objective)
+                sender.send(("detached", float(objective), np.asarray(edges, dtype=np.int64)))
+
+    set_known_sink(sink, detached_sink)
     try:
         result = solve(model, graph, curve, options)
         send(("finishing",))  # sending a large solution may outlast the time limit: no kill now
@@ -239,14 +281,65 @@ def _die_with_parent() -> None:
         os._exit(1)
 
 
-def _watch(child, receiver, model, start: float, options: SolverOptions) -> SolveResult:
-    """Wait for the child's outcome, forwarding signals; what it sent, or a failure result.
+class ChildReports:
+    """What the parent knows of a running child: figures, last closed path, last detached solution.
+
+    Attributes
+    ----------
+    known : dict
+        :meth:`KnownFigures.as_dict` of the last ``"known"`` report.
+    path : tuple of (float, np.ndarray) or None
+        The cheapest closed path reported: its objective and full-model columns (k,).
+    detached : tuple of (float, np.ndarray) or None
+        The cheapest solution with detached cycles reported: its objective and edge ids (m,).
+    detached_is_newer : bool
+        Whether that solution came after the last closed path.
+
+    """
+
+    def __init__(self) -> None:
+        self.known: dict = {}
+        self.path: tuple[float, np.ndarray] | None = None
+        self.detached: tuple[float, np.ndarray] | None = None
+        self.detached_is_newer = False
+
+    def take(self, message: tuple) -> bool:
+        """Take in a ``"known"`` or ``"detached"`` message; False for any other kind."""
+        if message[0] == "known":  # ("known", figures, new path or None, its objective)
+            _, self.known, new_path, objective = message
+            if new_path is not None:
+                self.path, self.detached_is_newer = (objective, new_path), False
+            return True
+        if message[0] == "detached":  # ("detached", objective, edges)
+            self.detached, self.detached_is_newer = (message[1], message[2]), True
+            return True
+        return False
+
+    def drain(self, receiver) -> None:
+        """Take in the reports still in the pipe of a child that has ended or was killed."""
+        try:
+            while receiver.poll(0):
+                self.take(receiver.recv())
+        except (EOFError, OSError):
+            pass
+
+    def repair_would_help(self) -> bool:
+        """Whether the last solution with detached cycles is newer and cheaper than every closed path."""
+        if self.detached is None or not self.detached_is_newer:
+            return False
+        return self.path is None or self.detached[0] < self.path[0]
+
+
+def _watch(child, receiver, model, start: float, options: SolverOptions, repair_at: float = math.inf):
+    """Wait for the child's outcome, forwarding signals; (what it sent or a failure result, reports).
 
     A child still solving ``OVERRUN_KILL_S`` past ``options.time_limit`` (seconds from
     ``start``) is killed, and its last reported incumbent and bound are returned
-    (:func:`_overran`).
+    (:func:`_overran`). One still solving at ``repair_at`` (a ``time.perf_counter()`` value)
+    while its last solution with detached cycles is newer and cheaper than its closed paths is
+    killed too, and the result is None: the caller repairs that solution.
     """
-    known, path, finishing, forwarded_at = {}, None, False, None
+    reports, finishing, forwarded_at = ChildReports(), False, None
     kill_at = start + options.time_limit + OVERRUN_KILL_S
     with shutdown.native_call():  # a signal is only recorded meanwhile: the child must hear of it first
         while True:
@@ -256,18 +349,17 @@ def _watch(child, receiver, model, start: float, options: SolverOptions) -> Solv
                 except EOFError:  # the child is gone without a result
                     break
                 kind = message[0]
-                if kind == "known":
-                    known, path = _with_report(message, path)
+                if reports.take(message):
                     continue
                 if kind == "finishing":
                     finishing = True
                     continue
                 if kind == "result":
-                    return message[1]
+                    return message[1], reports
                 if kind == "raised":
                     raise message[1]
                 _, signum, figures = message
-                _raise_interrupted(signum, {**known, **figures})
+                _raise_interrupted(signum, {**reports.known, **figures})
             elif not child.is_alive() and not receiver.poll():
                 break
             if shutdown.stop_requested() and forwarded_at is None:
@@ -276,61 +368,78 @@ def _watch(child, receiver, model, start: float, options: SolverOptions) -> Solv
             if forwarded_at is not None and time.perf_counter() - forwarded_at > STOP_GRACE_S:
                 logger.warning("the solver process did not stop within %.0f s: killed", STOP_GRACE_S)
                 child.kill()
-                _raise_interrupted(shutdown.received_signal(), known)
-            if not finishing and forwarded_at is None and time.perf_counter() > kill_at:
+                _raise_interrupted(shutdown.received_signal(), reports.known)
+            if finishing or forwarded_at is not None:
+                continue
+            now = time.perf_counter()
+            if now > kill_at or (now > repair_at and reports.repair_would_help()):
                 child.kill()
                 child.join()
-                known, path = _last_reports(receiver, known, path)
-                return _overran(known, path, model, time.perf_counter() - start, options)
+                reports.drain(receiver)
+                if now > kill_at:
+                    return _overran(reports, model, now - start, options), reports
+                return None, reports
     child.join()
-    return _failure(child.exitcode, known, model, time.perf_counter() - start)
+    return _failure(child.exitcode, reports.known, model, time.perf_counter() - start), reports
 
 
-def _last_reports(receiver, known: dict, path):
-    """``known`` and ``path`` updated by the reports still in the pipe of a killed child."""
-    try:
-        while receiver.poll(0):
-            message = receiver.recv()
-            if message[0] == "known":
-                known, path = _with_report(message, path)
-    except (EOFError, OSError):
-        pass
-    return known, path
+def _repaired_in_reserve(reports: ChildReports, model, graph, curve, start: float, options) -> SolveResult:
+    """The result after the child was stopped for a repair: the repaired path if it is cheaper.
+
+    The repair runs in a fresh solver process over what is left of ``options.time_limit``;
+    the result is then as for a child stopped at its limit (:func:`_overran`), with the
+    repaired path among the closed paths.
+    """
+    detached_objective, edges = reports.detached
+    best = reports.path[0] if reports.path is not None else math.inf
+    left = start + options.time_limit - time.perf_counter()
+    logger.warning(
+        "the solver process was still inside HiGHS %.0f s before the time limit, its best closed "
+        "path costing %s and a solution with detached cycles %.6g: stopped, to repair that solution "
+        "in the time left",
+        left, f"{best:.6g}" if math.isfinite(best) else "nothing (none known)", detached_objective,
+    )  # fmt: skip
+    repair = functools.partial(repair_reported, edges)
+    repaired = solve_isolated(
+        repair, model, graph, curve, replace(options, time_limit=max(left, 0.0)), reserve_repair=False
+    )
+    if repaired.x is not None and repaired.objective < best:
+        logger.info("repaired in the reserve: a closed path of cost %.8g", repaired.objective)
+        reports.path = (repaired.objective, used_columns(repaired.x))
+    else:
+        logger.warning("the repair in the reserve found no cheaper closed path (%s)", repaired.message)
+    words = "stopped inside HiGHS to repair a solution with detached cycles"
+    return _overran(reports, model, time.perf_counter() - start, options, words)
 
 
-def _with_report(message: tuple, path):
-    """The figures of a ``("known", figures, new path or None, its objective)`` report, and the path then."""
-    _, figures, new_path, objective = message
-    return figures, path if new_path is None else (objective, new_path)
-
-
-def _overran(known: dict, path, model, wall: float, options: SolverOptions) -> SolveResult:
-    """The result of a solver process killed for running past its time limit.
+def _overran(reports: ChildReports, model, wall: float, options: SolverOptions, words: str | None = None):
+    """The result of a solver process killed for running past its time limit (or for a repair).
 
     HiGHS checks neither its time limit nor its interrupt flag in some phases (a MIP's
     root analytic-centre computation on a large model can run many minutes past the limit;
-    measurements: bench/README.md, solver constants). The last incumbent the child reported
-    with its solution is the result, with the last certified bound: "optimal" if they are within
+    measurements: bench/README.md, solver constants). The cheapest closed path reported with
+    its solution is the result, with the last certified bound: "optimal" if they are within
     ``options.mip_rel_gap`` (both hold for the full model), else "feasible"; "no_solution"
     without an incumbent.
     """
-    bound = known.get("bound")
+    bound = reports.known.get("bound")
     bound = -math.inf if bound is None else bound
-    overrun, time_limit = wall - options.time_limit, options.time_limit
-    logger.error(
-        "the solver process was %.0f s past the %.0f s time limit inside HiGHS (a phase without "
-        "interrupt checks): stopped",
-        overrun,
-        time_limit,
-    )
-    words = f"stopped {overrun:.0f} s past the time limit inside HiGHS"
-    if path is None:
+    if words is None:
+        overrun, time_limit = wall - options.time_limit, options.time_limit
+        logger.error(
+            "the solver process was %.0f s past the %.0f s time limit inside HiGHS (a phase without "
+            "interrupt checks): stopped",
+            overrun,
+            time_limit,
+        )
+        words = f"stopped {overrun:.0f} s past the time limit inside HiGHS"
+    if reports.path is None:
         message = f"{words}, before any solution was known"
         return SolveResult(
             "no_solution", None, math.inf, bound, math.nan, wall, model.n_vars, model.n_rows,
             int(getattr(model, "nnz", 0) or 0), message,
         )  # fmt: skip
-    objective, columns = path
+    objective, columns = reports.path
     x = np.zeros(model.n_vars)
     x[columns] = 1.0
     gap = relative_gap(objective, bound)

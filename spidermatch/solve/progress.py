@@ -85,12 +85,16 @@ class ProgressLog:
 
 
 _KNOWN_SINK = None  # (incumbent, bound, path) -> None; set in a solver process (spidermatch.solve.isolate)
+_DETACHED_SINK = None  # (objective, edges) -> None; likewise
 
 
-def set_known_sink(sink) -> None:
-    """Send the figures of :func:`report_known` to ``sink(incumbent, bound, path)`` (None: nowhere)."""
-    global _KNOWN_SINK
-    _KNOWN_SINK = sink
+def set_known_sink(sink, detached_sink=None) -> None:
+    """Send the figures of :func:`report_known` to ``sink(incumbent, bound, path)`` (None: nowhere).
+
+    ``detached_sink(objective, edges)`` receives those of :func:`report_detached`.
+    """
+    global _KNOWN_SINK, _DETACHED_SINK
+    _KNOWN_SINK, _DETACHED_SINK = sink, detached_sink
 
 
 def report_known(incumbent: float | None = None, bound: float | None = None, path=None) -> None:
@@ -109,3 +113,22 @@ def report_known(incumbent: float | None = None, bound: float | None = None, pat
     """
     if _KNOWN_SINK is not None:
         _KNOWN_SINK(incumbent, bound, path)
+
+
+def report_detached(objective: float, edges) -> None:
+    """Record a MIP solution with detached cycles, cheaper than every closed path known then.
+
+    Connectivity cuts will cut it off, but a repair (:mod:`spidermatch.solve.repair`) can turn
+    it into a closed path nearby; if the solver is stopped before it gets that far, the run
+    can still repair it elsewhere (:func:`spidermatch.solve.isolate.solve_isolated`).
+
+    Parameters
+    ----------
+    objective : float
+        Its cost.
+    edges : np.ndarray, shape (k,)
+        The full-model columns (product-graph edge ids) it sets to 1, sorted.
+
+    """
+    if _DETACHED_SINK is not None:
+        _DETACHED_SINK(objective, edges)

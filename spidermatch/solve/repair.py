@@ -17,6 +17,7 @@ the solution (:func:`repair_with_nearby_columns`).
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import replace
 
@@ -27,10 +28,10 @@ from spidermatch.model.ilp import IlpModel, restrict_columns
 from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import ProductGraph
 from spidermatch.model.solution import USED
-from spidermatch.solve.connectivity import is_closed_path
+from spidermatch.solve.connectivity import detached_components_of_edges, is_closed_path
 from spidermatch.solve.highs import HighsSession
 from spidermatch.solve.layer_flow import SessionFlows
-from spidermatch.solve.types import SolverOptions
+from spidermatch.solve.types import SolveResult, SolverOptions
 
 logger = logging.getLogger(__name__)
 
@@ -38,8 +39,17 @@ REPAIR_WINDOWS = (3, 12)  # layers on each side of an affected layer whose colum
 # the first try, and a wider one if the first has no closed path
 REPAIR_TIME_S = 30.0  # the repair MIP's time limit at most ...
 REPAIR_TIME_SHARE = 0.2  # ... and, between cut rounds, at most this share of the time left
+STOP_RESERVE_S = 2 * REPAIR_TIME_S  # a MIP whose cheapest solution has detached cycles stops this long
+# (at most REPAIR_TIME_SHARE of the limit) before the limit, for the repairs in the solver process;
+# the last half is the reserve of a repair in a fresh process if that one is still inside HiGHS
+# (spidermatch.solve.isolate)
 REPAIR_GAP = 1e-3  # a start, not a proof: stop within this relative gap
 NEARBY_RINGS = 2  # a widened repair adds the columns within this many target rings of the solution
+
+
+def stop_reserve(time_limit: float) -> float:
+    """Seconds before ``time_limit`` at which a MIP stops to leave time for the repairs."""
+    return min(STOP_RESERVE_S, REPAIR_TIME_SHARE * time_limit)
 
 
 def window_layers(layers, n_layers: int, window: int = REPAIR_WINDOWS[0]) -> np.ndarray:
@@ -241,3 +251,56 @@ def repair_with_nearby_columns(
         return positions, _local_mip(model, graph, positions, local, pool, local_options, flow_layers)
 
     return _in_growing_windows(attempt, affected_layers, pool, graph.n_layers, lazy.n_vars, options)
+
+
+def repair_reported(
+    edges: np.ndarray, lazy: LazyModel, graph: ProductGraph, curve, options: SolverOptions
+) -> SolveResult:
+    """A closed path near a reported solution with detached cycles, from the model alone.
+
+    What a solver process stopped from outside leaves is the last such solution it reported
+    (:func:`spidermatch.solve.progress.report_detached`), not its restricted columns or cuts.
+    This repair needs neither: it frees the full model's columns near the solution in windows
+    around its detached cycles (:func:`repair_with_nearby_columns`, with the solution's own
+    edges as the restricted set), with flow rows there. It proves nothing.
+
+    Parameters
+    ----------
+    edges : np.ndarray, shape (m,)
+        Edge ids of the solution with detached cycles, sorted.
+    lazy : LazyModel
+    graph : ProductGraph
+        ``lazy.graph``.
+    curve : spidermatch.model.curve.SpiderCurve
+        Its ``first_layer`` (L,) ties the layers of one source vertex.
+    options : SolverOptions
+        Its time limit is the repair's.
+
+    Returns
+    -------
+    SolveResult
+        "feasible" with the closed path (n_vars,) and its cost, bound ``-inf``; "no_solution"
+        when none was found in time, or when the solution has no detached cycle to repair.
+
+    """
+    from spidermatch.solve.cuts import CutPool  # cuts imports this module
+
+    start = time.perf_counter()
+    pool = CutPool(first_layer=curve.first_layer)
+    components = detached_components_of_edges(graph, edges)
+    repaired = None
+    if components:
+        layers = pool.note_detached(graph, components)
+        repaired = repair_with_nearby_columns(lazy, edges, edges, layers, pool, options)
+    wall = time.perf_counter() - start
+    if repaired is None:
+        return SolveResult(
+            "no_solution", None, math.inf, -math.inf, math.nan, wall, lazy.n_vars, lazy.n_rows, 0,
+            "no closed path found near the reported solution",
+        )  # fmt: skip
+    used = np.flatnonzero(repaired > USED)
+    objective = float(lazy.costs(used) @ repaired[used])
+    return SolveResult(
+        "feasible", repaired, objective, -math.inf, math.nan, wall, lazy.n_vars, lazy.n_rows, 0,
+        "a closed path near the last reported solution with detached cycles",
+    )  # fmt: skip
