@@ -403,12 +403,16 @@ def _repaired_in_reserve(reports: ChildReports, model, graph, curve, start: floa
     repaired = solve_isolated(
         repair, model, graph, curve, replace(options, time_limit=max(left, 0.0)), reserve_repair=False
     )
+    words = (
+        f"stopped inside HiGHS {left:.0f} s before the time limit to repair a solution with detached cycles"
+    )
     if repaired.x is not None and repaired.objective < best:
         logger.info("repaired in the reserve: a closed path of cost %.8g", repaired.objective)
         reports.path = (repaired.objective, used_columns(repaired.x))
+        words += " (repaired)"
     else:
         logger.warning("the repair in the reserve found no cheaper closed path (%s)", repaired.message)
-    words = "stopped inside HiGHS to repair a solution with detached cycles"
+        words += " (no cheaper closed path found)"
     return _overran(reports, model, time.perf_counter() - start, options, words)
 
 
@@ -444,7 +448,7 @@ def _overran(reports: ChildReports, model, wall: float, options: SolverOptions, 
     x[columns] = 1.0
     gap = relative_gap(objective, bound)
     status = "optimal" if gap <= options.mip_rel_gap else "feasible"
-    message = f"{words}; the best closed path and bound reported before"
+    message = f"{words}; the best closed path known and the bound reported before"
     return SolveResult(
         status, x, objective, bound, gap, wall, model.n_vars, model.n_rows,
         int(getattr(model, "nnz", 0) or 0), message,
