@@ -247,3 +247,26 @@ def test_a_detached_solution_older_than_the_last_closed_path_is_left_alone(monke
     )
     assert "past the time limit" in result.message and "repair" not in result.message
     np.testing.assert_array_equal(np.flatnonzero(result.x), path)
+
+
+def test_a_child_that_repairs_itself_is_left_to_its_repair(monkeypatch):
+    from functools import partial
+
+    from spidermatch.solve.progress import report_detached, report_repairing
+    from tests.test_colgen import creature_lazy
+
+    lazy = creature_lazy(24, 3)
+    path, detached = path_and_detached_copy(lazy)
+
+    def repairing_itself(lazy, graph, curve, options):
+        report_known(incumbent=float(lazy.costs(path).sum()), bound=0.0, path=path)
+        report_detached(float(lazy.costs(detached).sum()) - 1.0, detached)
+        report_repairing()
+        time.sleep(600)
+
+    monkeypatch.setattr(isolate, "OVERRUN_KILL_S", 0.5)
+    monkeypatch.setattr(isolate, "parent_reserve", lambda time_limit: time_limit - 0.2)
+    result = solve_isolated(
+        partial(repairing_itself), lazy, lazy.graph, lazy.curve, SolverOptions(time_limit=1.0)
+    )
+    assert "past the time limit" in result.message and "repair" not in result.message

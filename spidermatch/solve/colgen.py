@@ -72,7 +72,12 @@ from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import LP_EXTRA, HighsSession
 from spidermatch.solve.pricing import Pricing, price, up_to, with_path_reduced_costs
 from spidermatch.solve.progress import report_known
-from spidermatch.solve.repair import REPAIR_TIME_S, REPAIR_TIME_SHARE, repair_with_nearby_columns
+from spidermatch.solve.repair import (
+    REPAIR_TIME_S,
+    REPAIR_TIME_SHARE,
+    repair_with_nearby_columns,
+    stop_reserve,
+)
 from spidermatch.solve.seeds import path_band_seed, stay_seed
 from spidermatch.solve.types import (
     LpNotSolved,
@@ -341,7 +346,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         proven_here = result.status == "optimal" and outside >= result.bound  # the MIP's proof covers all
         certified = proven_here or relative_gap(result.objective, bound) <= options.mip_rel_gap
         if not certified:  # a cheaper solution cut off for detached cycles: re-route it
-            result = _with_nearby_repair(lazy, columns, pool, result, remaining(options, start))
+            result = _with_nearby_repair(lazy, columns, pool, result, remaining(options, start), options)
             certified = relative_gap(result.objective, bound) <= options.mip_rel_gap
         incumbent = result.x
         best = replace(result, bound=bound, gap=relative_gap(result.objective, bound))
@@ -368,19 +373,26 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     return replace(best, status="feasible", message=f"not certified within {MAX_STEPS} steps")
 
 
-def _with_nearby_repair(lazy, columns, pool, result: SolveResult, options: SolverOptions) -> SolveResult:
+def _with_nearby_repair(
+    lazy, columns, pool, result: SolveResult, options: SolverOptions, whole: SolverOptions
+) -> SolveResult:
     """``result`` with a cheaper closed path near the solution its MIP cut off, when one is found.
 
     The restricted MIP may end with only an expensive closed path (the stay path) after its
     cheapest solution had detached cycles that no re-routing within its columns mends
     (:func:`~spidermatch.solve.repair.repair_with_nearby_columns` also uses nearby columns of
     the full model). The closed path found is an incumbent: the step's bound is untouched, so
-    the certificate (docs/method.md, section 7) holds as before.
+    the certificate (docs/method.md, section 7) holds as before. ``options`` holds the time
+    left, ``whole`` the run's: the repair gets a share of what is left, or all of it once the
+    run is in its last :func:`~spidermatch.solve.repair.stop_reserve` (a MIP stopped for it).
     """
     detached, pool.detached = pool.detached, None
     if detached is None or detached.objective >= result.objective or options.time_limit <= 0:
         return result
-    budget = replace(options, time_limit=min(REPAIR_TIME_S, REPAIR_TIME_SHARE * options.time_limit))
+    seconds = options.time_limit
+    if seconds > stop_reserve(whole.time_limit):
+        seconds = min(REPAIR_TIME_S, REPAIR_TIME_SHARE * seconds)
+    budget = replace(options, time_limit=seconds)
     repaired = repair_with_nearby_columns(lazy, columns, detached.used, detached.layers, pool, budget)
     if repaired is None:
         return result

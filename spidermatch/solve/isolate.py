@@ -30,8 +30,9 @@ The same phases can keep the child from stopping a MIP in time to repair a solut
 detached cycles that is much cheaper than every closed path it has (the stay path, at 4000
 faces). The child reports such solutions too
 (:func:`~spidermatch.solve.progress.report_detached`); if the last one reported is newer than
-the last closed path when only the reserve (:func:`parent_reserve`) is left, the child is
-killed and a fresh solver process repairs that solution in the reserve
+the last closed path when only the reserve (:func:`parent_reserve`) is left, and the child
+has not begun a repair itself since, the child is killed and a fresh solver process repairs
+that solution in the reserve
 (:func:`~spidermatch.solve.repair.repair_reported`; column generation's lazy model only).
 """
 
@@ -245,7 +246,9 @@ def _child_main(receiver, sender, solve, model, graph, curve, options) -> None:
 
     def detached_sink(objective, edges) -> None:  # called from HiGHS's callbacks, on the solver thread
         with lock:
-            if objective < min(known.detached_objective, known.path_objective):
+            if objective is None:  # the child repairs itself
+                sender.send(("detached", None, None))
+            elif objective < min(known.detached_objective, known.path_objective):
                 known.detached_objective = float(objective)
                 sender.send(("detached", float(objective), np.asarray(edges, dtype=np.int64)))
 
@@ -293,7 +296,8 @@ class ChildReports:
     detached : tuple of (float, np.ndarray) or None
         The cheapest solution with detached cycles reported: its objective and edge ids (m,).
     detached_is_newer : bool
-        Whether that solution came after the last closed path.
+        Whether that solution came after the last closed path and after the child last said
+        it was repairing one itself.
 
     """
 
@@ -310,8 +314,11 @@ class ChildReports:
             if new_path is not None:
                 self.path, self.detached_is_newer = (objective, new_path), False
             return True
-        if message[0] == "detached":  # ("detached", objective, edges)
-            self.detached, self.detached_is_newer = (message[1], message[2]), True
+        if message[0] == "detached":  # ("detached", objective, edges), or (None, None): repairing itself
+            if message[1] is None:
+                self.detached_is_newer = False
+            else:
+                self.detached, self.detached_is_newer = (message[1], message[2]), True
             return True
         return False
 

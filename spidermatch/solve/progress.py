@@ -91,7 +91,8 @@ _DETACHED_SINK = None  # (objective, edges) -> None; likewise
 def set_known_sink(sink, detached_sink=None) -> None:
     """Send the figures of :func:`report_known` to ``sink(incumbent, bound, path)`` (None: nowhere).
 
-    ``detached_sink(objective, edges)`` receives those of :func:`report_detached`.
+    ``detached_sink(objective, edges)`` receives those of :func:`report_detached`, and
+    ``(None, None)`` from :func:`report_repairing`.
     """
     global _KNOWN_SINK, _DETACHED_SINK
     _KNOWN_SINK, _DETACHED_SINK = sink, detached_sink
@@ -132,3 +133,9 @@ def report_detached(objective: float, edges) -> None:
     """
     if _DETACHED_SINK is not None:
         _DETACHED_SINK(objective, edges)
+
+
+def report_repairing() -> None:
+    """Record that this process itself now repairs its solutions with detached cycles."""
+    if _DETACHED_SINK is not None:
+        _DETACHED_SINK(None, None)

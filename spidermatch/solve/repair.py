@@ -31,6 +31,7 @@ from spidermatch.model.solution import USED
 from spidermatch.solve.connectivity import detached_components_of_edges, is_closed_path
 from spidermatch.solve.highs import HighsSession
 from spidermatch.solve.layer_flow import SessionFlows
+from spidermatch.solve.progress import report_repairing
 from spidermatch.solve.types import SolveResult, SolverOptions
 
 logger = logging.getLogger(__name__)
@@ -125,6 +126,7 @@ def _in_growing_windows(attempt, affected_layers, pool, n_layers: int, size: int
     solution spread into a vector (size,), or None when no window gave one in time.
     """
     deadline = time.perf_counter() + options.time_limit
+    report_repairing()  # a solver process that repairs is not stuck (spidermatch.solve.isolate)
     for window in REPAIR_WINDOWS:
         left = deadline - time.perf_counter()
         if left <= 0:
