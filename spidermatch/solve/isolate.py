@@ -33,7 +33,7 @@ faces). The child reports such solutions too
 the last closed path when only the reserve (:func:`parent_reserve`) is left, and the child
 has not begun a repair itself since, the child is killed and a fresh solver process repairs
 that solution in the reserve
-(:func:`~spidermatch.solve.repair.repair_reported`; column generation's lazy model only).
+(:func:`~spidermatch.solve.reserve.repair_reported`; column generation's lazy model only).
 """
 
 from __future__ import annotations
@@ -55,7 +55,8 @@ from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.solution import used_columns
 from spidermatch.solve import interrupt
 from spidermatch.solve.progress import set_known_sink
-from spidermatch.solve.repair import repair_reported, stop_reserve
+from spidermatch.solve.repair import stop_reserve
+from spidermatch.solve.reserve import repair_reported
 from spidermatch.solve.types import SolveResult, SolverOptions, relative_gap
 
 PR_SET_PDEATHSIG = 1  # prctl(2): the signal a process gets when its parent dies

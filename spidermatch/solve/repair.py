@@ -17,7 +17,6 @@ the solution (:func:`repair_with_nearby_columns`).
 from __future__ import annotations
 
 import logging
-import math
 import time
 from dataclasses import replace
 
@@ -28,11 +27,11 @@ from spidermatch.model.ilp import IlpModel, restrict_columns
 from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import ProductGraph
 from spidermatch.model.solution import USED
-from spidermatch.solve.connectivity import detached_components_of_edges, is_closed_path
+from spidermatch.solve.connectivity import is_closed_path
 from spidermatch.solve.highs import HighsSession
 from spidermatch.solve.layer_flow import SessionFlows
 from spidermatch.solve.progress import report_repairing
-from spidermatch.solve.types import SolveResult, SolverOptions
+from spidermatch.solve.types import SolverOptions
 
 logger = logging.getLogger(__name__)
 
@@ -253,56 +252,3 @@ def repair_with_nearby_columns(
         return positions, _local_mip(model, graph, positions, local, pool, local_options, flow_layers)
 
     return _in_growing_windows(attempt, affected_layers, pool, graph.n_layers, lazy.n_vars, options)
-
-
-def repair_reported(
-    edges: np.ndarray, lazy: LazyModel, graph: ProductGraph, curve, options: SolverOptions
-) -> SolveResult:
-    """A closed path near a reported solution with detached cycles, from the model alone.
-
-    What a solver process stopped from outside leaves is the last such solution it reported
-    (:func:`spidermatch.solve.progress.report_detached`), not its restricted columns or cuts.
-    This repair needs neither: it frees the full model's columns near the solution in windows
-    around its detached cycles (:func:`repair_with_nearby_columns`, with the solution's own
-    edges as the restricted set), with flow rows there. It proves nothing.
-
-    Parameters
-    ----------
-    edges : np.ndarray, shape (m,)
-        Edge ids of the solution with detached cycles, sorted.
-    lazy : LazyModel
-    graph : ProductGraph
-        ``lazy.graph``.
-    curve : spidermatch.model.curve.SpiderCurve
-        Its ``first_layer`` (L,) ties the layers of one source vertex.
-    options : SolverOptions
-        Its time limit is the repair's.
-
-    Returns
-    -------
-    SolveResult
-        "feasible" with the closed path (n_vars,) and its cost, bound ``-inf``; "no_solution"
-        when none was found in time, or when the solution has no detached cycle to repair.
-
-    """
-    from spidermatch.solve.cuts import CutPool  # cuts imports this module
-
-    start = time.perf_counter()
-    pool = CutPool(first_layer=curve.first_layer)
-    components = detached_components_of_edges(graph, edges)
-    repaired = None
-    if components:
-        layers = pool.note_detached(graph, components)
-        repaired = repair_with_nearby_columns(lazy, edges, edges, layers, pool, options)
-    wall = time.perf_counter() - start
-    if repaired is None:
-        return SolveResult(
-            "no_solution", None, math.inf, -math.inf, math.nan, wall, lazy.n_vars, lazy.n_rows, 0,
-            "no closed path found near the reported solution",
-        )  # fmt: skip
-    used = np.flatnonzero(repaired > USED)
-    objective = float(lazy.costs(used) @ repaired[used])
-    return SolveResult(
-        "feasible", repaired, objective, -math.inf, math.nan, wall, lazy.n_vars, lazy.n_rows, 0,
-        "a closed path near the last reported solution with detached cycles",
-    )  # fmt: skip
