@@ -16,9 +16,11 @@ from spidermatch.geometry.descriptors import WKSExtractor
 from spidermatch.geometry.io import load_mesh, save_mesh
 from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh, topology
 from spidermatch.geometry.partial import (
+    MIN_PART_SHARE,
     covered_target,
     holes_cut,
     mean_edge_length,
+    overlap_kind,
     pair_kind,
     plane_cut,
     random_cut,
@@ -93,6 +95,25 @@ def test_a_part_is_recognised_and_other_topology_differences_refused(creature):
     enlarged = Mesh(part.verts * 10.0, part.faces, "millimetres.off")
     with pytest.raises(MeshError, match="same unit"):
         pair_kind(enlarged, creature)
+
+
+def test_a_part_in_another_unit_than_its_whole_is_refused_with_the_likely_factor(creature):
+    part = plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.5, "part_m.off").mesh
+    in_millimetres = Mesh(creature.verts * 1000.0, creature.faces, "whole_mm.off")
+    metres_in_millimetres = r"scaled by 1000 \(millimetres and metres\)"
+    with pytest.raises(MeshError, match=r"only 5.*e-07 of its area.*" + metres_in_millimetres):
+        pair_kind(part, in_millimetres)
+    part_mm = Mesh(part.verts * 1000.0, part.faces, "part_mm.off")
+    with pytest.raises(MeshError, match=r"same unit \(the source scaled by 0.001 \(millimetres and metres\)"):
+        pair_kind(part_mm, creature)
+    with pytest.raises(
+        MeshError, match=r"partial=both: part_m.off has 5.*e-07 times the area.*" + metres_in_millimetres
+    ):
+        overlap_kind(part, in_millimetres)
+    tiny = plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.008, "tiny.off").mesh  # a true part, too small
+    assert tiny.area / creature.area < MIN_PART_SHARE
+    with pytest.raises(MeshError, match="too small to be matched"):
+        pair_kind(tiny, creature)
 
 
 def test_the_identity_of_a_part_covers_what_was_kept():

@@ -292,6 +292,43 @@ class PairKind:
     caution: str = ""
 
 
+MIN_PART_SHARE = 0.01
+"""The smallest share of its whole's area a partial source may have (:func:`pair_kind`).
+
+At the default 1000 target faces, 1 % of the area is 10 faces of the target's edge length: a
+part that small cannot be matched, and a source that looks that small is more likely given
+in millimetres against a target in metres (a factor of 10^-6 in area)."""
+
+MAX_PARTS_AREA_RATIO = 100.0
+"""The largest ratio of areas two parts of one surface may have (:func:`overlap_kind`)."""
+
+UNIT_FACTORS = {
+    "millimetres and metres": 1000.0,
+    "centimetres and metres": 100.0,
+    "millimetres and centimetres": 10.0,
+    "millimetres and inches": 25.4,
+    "centimetres and inches": 2.54,
+    "inches and metres": 1 / 0.0254,
+    "feet and metres": 1 / 0.3048,
+}
+"""Length ratios of common pairs of units, for :func:`unit_hint`."""
+
+
+def unit_hint(area_ratio: float, plausible: tuple[float, float] = (0.05, 1.0)) -> str:
+    """A clause naming the unit mix-ups that would explain ``area_ratio`` (source over target area).
+
+    A pair of units explains the ratio when scaling the source by their length ratio (or its
+    inverse) would bring its area to a ``plausible`` share of the target's. Empty when none does.
+    """
+    found = []
+    for units, factor in UNIT_FACTORS.items():
+        for scale in (factor, 1.0 / factor):
+            share = area_ratio * scale**2
+            if plausible[0] <= share <= plausible[1]:
+                found.append(f"the source scaled by {scale:.4g} ({units}) would have {share:.0%} of it")
+    return f" ({'; '.join(found)})" if found else ""
+
+
 INCOMPLETE_TARGET = (
     "the target has boundary loops too: if it is incomplete as well, parts of the source may have no "
     "partner, and the map still gives every source vertex one (partial-to-partial matching is not supported)"
@@ -346,7 +383,14 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
             raise MeshError(
                 f"{refusal}. The source has boundary loops the target lacks, like a part of it, but its "
                 f"area is {ratio:.3g} times the target's: a part is matched in its whole's unit of length, "
-                "so give both meshes in the same unit"
+                f"so give both meshes in the same unit{unit_hint(ratio)}"
+            )
+        if ratio < MIN_PART_SHARE:
+            raise MeshError(
+                f"{refusal}. The source has boundary loops the target lacks, like a part of it, but only "
+                f"{ratio:.2g} of its area: a part under {MIN_PART_SHARE:.0%} of its whole is too small to be "
+                "matched at a resolution the target can have, and a part this small is most often given in "
+                f"another unit of length than its whole{unit_hint(ratio)}. Give both meshes in the same unit"
             )
         reason = (
             f"{source.name} has {top_x} and {ratio:.0%} of the area of {target.name} ({top_y}): "
@@ -373,6 +417,12 @@ def overlap_kind(source: Mesh, target: Mesh) -> PairKind:
     """
     top_x, top_y = topology(source), topology(target)
     ratio = source.area / target.area
+    if not 1.0 / MAX_PARTS_AREA_RATIO <= ratio <= MAX_PARTS_AREA_RATIO:
+        raise MeshError(
+            f"partial=both: {source.name} has {ratio:.3g} times the area of {target.name}: two scans of "
+            f"one surface that differ more than {MAX_PARTS_AREA_RATIO:.0f}-fold in area are most often given "
+            f"in two units of length{unit_hint(ratio, (0.1, 10.0))}. Give both meshes in the same unit"
+        )
     reason = (
         f"partial=both: {source.name} ({top_x}) and {target.name} ({top_y}) are matched as two parts "
         "of one surface in one unit; only the source region estimated to overlap the target is matched"
