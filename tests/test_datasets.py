@@ -5,7 +5,7 @@ from spidermatch.data.datasets import DatasetError, ShapeFolder, SyntheticShapes
 from spidermatch.data.synthetic import creature_pair_ground_truth, make_creature
 from spidermatch.eval.errors import cumulative_curve, dense_map_errors, sparse_map_errors
 from spidermatch.geometry.io import save_mesh
-from spidermatch.geometry.remesh import decimate
+from spidermatch.geometry.remesh import decimate, nearest_vertices, surface_nearest_vertices
 
 
 def test_synthetic_shapes_are_seeded_and_meshed_independently():
@@ -79,7 +79,7 @@ def test_sparse_map_uses_nearest_reference_point():
 
 
 def test_decimation_hits_face_count_and_maps_to_nearest_vertex():
-    mesh = make_creature(2000, 4).mesh
+    mesh = make_creature(2000, 4).mesh  # no two parts touch: the vertex on its own part is the nearest
     for faces in (100, 500):
         low = decimate(mesh, faces)
         assert low.mesh.n_faces == faces
@@ -89,3 +89,20 @@ def test_decimation_hits_face_count_and_maps_to_nearest_vertex():
         np.testing.assert_allclose(distance, all_distances.min(axis=1))
     same = decimate(mesh, 10**6)
     assert same.mesh is mesh and np.array_equal(same.to_full, np.arange(mesh.n_verts))
+
+
+def test_a_vertex_near_a_touching_part_is_mapped_to_its_own_part():
+    from tests.test_metrics import hairpin_strip
+
+    strip, index = hairpin_strip(radius=0.01)  # two arms 0.02 apart in space, about 2 apart along the strip
+    rows = index.shape[0]
+    first_arm, second_arm = index[: rows // 3].ravel(), index[-rows // 3 :].ravel()
+    births = first_arm[::7]
+    points = strip.verts[births] + np.array([0.003, 0.014, 0.0])  # nearer the second arm than the first
+    assert np.isin(nearest_vertices(strip.verts, points), second_arm).all()
+    reach = np.full(len(points), 0.05)
+    chosen = surface_nearest_vertices(strip, points, births, reach)
+    assert np.isin(chosen, first_arm).all()
+    on_first_arm = strip.verts[first_arm]
+    nearest_on_first = np.linalg.norm(points[:, None] - on_first_arm[None], axis=2).min(axis=1)
+    np.testing.assert_allclose(np.linalg.norm(strip.verts[chosen] - points, axis=1), nearest_on_first)

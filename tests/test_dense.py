@@ -8,10 +8,9 @@ from spidermatch.dense.feature_search import feature_nearest_neighbours
 from spidermatch.dense.settings import METHODS, DenseSettings
 from spidermatch.dense.zoomout import zoomout
 from spidermatch.eval.metrics import consistency, geodesic_errors, vertex_map_consistency
-from spidermatch.geometry.coarse import vertex_rings
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.remesh import Decimated, decimate
-from spidermatch.geometry.surface import closest_surface_points, surface_positions
+from spidermatch.geometry.surface import closest_surface_points, surface_positions, vertex_rings
 
 
 @pytest.fixture(scope="module")

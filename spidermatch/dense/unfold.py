@@ -27,11 +27,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from spidermatch.eval.metrics import TEAR_THRESHOLD, oriented_triangles
-from spidermatch.geometry.coarse import vertex_rings
 from spidermatch.geometry.graph_distance import farther_than, greedy_path_lengths
 from spidermatch.geometry.mesh import Mesh, mean_incident_edge_length
 from spidermatch.geometry.operators import vertex_normals
-from spidermatch.geometry.surface import vertex_face_table
+from spidermatch.geometry.surface import vertex_face_table, vertex_rings
 
 DISTANCE_WEIGHT = 0.5
 """Cost of one local target edge length between a vertex and its image point, in flipped triangles."""

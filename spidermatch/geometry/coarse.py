@@ -15,7 +15,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.remesh import Decimated
-from spidermatch.geometry.surface import closest_triangle_points, face_table, padded_rows
+from spidermatch.geometry.surface import closest_triangle_points, face_table, padded_rows, vertex_rings
 
 
 def coarse_labels(full: Mesh, low: Decimated) -> np.ndarray:
@@ -43,22 +43,6 @@ def coarse_labels(full: Mesh, low: Decimated) -> np.ndarray:
 
         labels[unreached] = cKDTree(low.mesh.verts).query(full.verts[unreached])[1]
     return labels
-
-
-def vertex_rings(mesh: Mesh) -> np.ndarray:
-    """Each vertex and its neighbours, shape (V, 1 + max degree), padded with the vertex itself.
-
-    Kept with the mesh (read-only), like its edges: the dense map and its figures ask for the
-    target's rings in every round.
-    """
-
-    def rings() -> np.ndarray:
-        edges = mesh.edges
-        neighbours = padded_rows(edges.reshape(-1), edges[:, ::-1].reshape(-1), mesh.n_verts)
-        own = np.arange(mesh.n_verts)[:, None]
-        return np.hstack([own, np.where(neighbours >= 0, neighbours, own)])
-
-    return mesh.cached("vertex_rings", rings)
 
 
 def ring_faces(mesh: Mesh, vertices: np.ndarray) -> np.ndarray:

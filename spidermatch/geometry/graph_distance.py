@@ -25,8 +25,8 @@ import numpy as np
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from spidermatch.geometry.coarse import vertex_rings
 from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.surface import vertex_rings
 
 GREEDY_STEPS = 64
 """Steps of the greedy walk that bounds a distance from above before any search."""

@@ -183,6 +183,22 @@ def padded_rows(keys: np.ndarray, values: np.ndarray, n_rows: int, fill: int = -
     return table
 
 
+def vertex_rings(mesh: Mesh) -> np.ndarray:
+    """Each vertex and its neighbours, shape (V, 1 + max degree), padded with the vertex itself.
+
+    Kept with the mesh (read-only), like its edges: the dense map and its figures ask for the
+    target's rings in every round.
+    """
+
+    def rings() -> np.ndarray:
+        edges = mesh.edges
+        neighbours = padded_rows(edges.reshape(-1), edges[:, ::-1].reshape(-1), mesh.n_verts)
+        own = np.arange(mesh.n_verts)[:, None]
+        return np.hstack([own, np.where(neighbours >= 0, neighbours, own)])
+
+    return mesh.cached("vertex_rings", rings)
+
+
 def surface_positions(mesh: Mesh, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
     """3D positions of points given as face (N,) + barycentric (N, 3), shape (N, 3)."""
     return np.einsum("nk,nkd->nd", bary, mesh.verts[mesh.faces[face]])
