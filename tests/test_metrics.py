@@ -107,3 +107,17 @@ def test_geodesic_check_catches_tears_that_are_short_in_space():
     torn = torn_edges(strip, strip, points, face, bary)
     assert torn[crossing].all() and not torn[~crossing].any()
     assert figures.tears == pytest.approx(crossing.mean())
+
+
+def test_a_truth_that_jumps_onto_a_touching_part_is_told_from_its_neighbours():
+    from spidermatch.eval.metrics import inconsistent_truth
+
+    strip, index = hairpin_strip()  # two arms 0.02 apart in space, about 2 apart along the strip
+    refs = np.arange(strip.n_verts)[::3]
+    truth = refs.copy()
+    assert not inconsistent_truth(strip, strip, refs, truth).any()
+    facing = np.arange(strip.n_verts).reshape(index.shape)[::-1].reshape(-1)  # the vertex across the gap
+    jumped = np.flatnonzero(np.isin(refs, index[30:32, 8:10]))  # a few points in the middle of arm one
+    truth[jumped] = facing[refs[jumped]]
+    flagged = inconsistent_truth(strip, strip, refs, truth)
+    np.testing.assert_array_equal(np.flatnonzero(flagged), jumped)
