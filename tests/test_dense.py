@@ -194,6 +194,27 @@ def test_unfolding_leaves_fewer_flipped_image_triangles_and_keeps_the_fixed_vert
     assert errors["after"].mean() < errors["before"].mean() + 0.005  # a neighbour, not a jump
 
 
+def test_unfolding_decides_again_only_what_can_change_and_gives_the_full_sweeps_map(
+    creature_pair, wks_features
+):
+    import spidermatch.dense.unfold as unfold
+
+    x, y, low_x, low_y, low_map, _ = creature_pair
+    rounded = densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features, DenseSettings(unfold=False))
+    nearest, points = rounded.vertex, rounded.points(y.mesh)
+    # The plain algorithm: every sweep decides every vertex of a flipped triangle or stretched edge.
+    context = unfold._Rounding.between(x.mesh, y.mesh)
+    plain = nearest.copy()
+    for _ in range(unfold.SWEEPS):
+        flipped = unfold.flipped_triangles(plain[x.mesh.faces], y.mesh, context.normals)
+        stretched = unfold._stretched_edges(x.mesh.edges, plain, context)
+        candidates = np.union1d(x.mesh.faces[flipped], x.mesh.edges[stretched])
+        for group in unfold.independent_groups(candidates, x.mesh.edges, x.mesh.n_verts):
+            plain[group] = unfold._best_choices(context, plain, group, nearest[group], points[group])
+    assert (plain != nearest).sum() > 10  # the rounding had something to mend
+    np.testing.assert_array_equal(unfold.unfolded_vertices(x.mesh, y.mesh, nearest, points), plain)
+
+
 def test_rounding_sees_an_image_edge_that_is_short_in_space_but_long_along_the_target():
     from spidermatch.dense.unfold import _Rounding, _stretched_edges
     from tests.test_metrics import hairpin_strip

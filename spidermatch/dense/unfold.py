@@ -44,7 +44,10 @@ not grow beyond it and the threshold. On the six held-out TOSCA_animals pairs (w
 3.1 % to 2.2 % at the same error (docs/dense_maps.md, "A tear is an edge that grows")."""
 
 SWEEPS = 4
-"""Passes over the vertices of flipped image triangles and torn image edges (2 left 0.1-0.2 % more tears)."""
+"""Passes over the vertices of flipped image triangles and torn image edges (2 left 0.1-0.2 % more tears).
+
+A pass decides again only the vertices a neighbour of which moved since their last choice (the
+others would choose the same), and the passes stop when one moves nothing."""
 
 CHOICE_CELLS = 2_000_000
 """Choices times faces (or neighbours) weighed at once at most, when a group chooses its vertices."""
@@ -101,13 +104,89 @@ def unfolded_vertices(
     movable = np.ones(source.n_verts, dtype=bool)
     if fixed is not None:
         movable[np.asarray(fixed, dtype=np.int64)] = False
+    status = _MendStatus.of(vertex, context)
+    ledger = _ChoiceLedger.empty(source.n_verts)
     for _ in range(SWEEPS):
-        flipped = flipped_triangles(vertex[source.faces], target, context.normals)
-        stretched = _stretched_edges(source.edges, vertex, context)
-        candidates = np.union1d(source.faces[flipped], source.edges[stretched])
+        candidates = status.vertices()
+        changed = np.zeros(source.n_verts, dtype=bool)
         for group in independent_groups(candidates[movable[candidates]], source.edges, source.n_verts):
-            vertex[group] = _best_choices(context, vertex, group, nearest[group], points[group])
+            group = group[ledger.stale(group)]
+            if not group.size:
+                continue
+            chosen = _best_choices(context, vertex, group, nearest[group], points[group])
+            moved = group[chosen != vertex[group]]
+            vertex[group] = chosen
+            ledger.record(group, moved, context.neighbours)
+            changed[moved] = True
+        if not changed.any():
+            break
+        status.update(vertex, changed, context)
     return vertex
+
+
+@dataclass
+class _MendStatus:
+    """Which image triangles are flipped and which image edges are stretched, kept up to date."""
+
+    faces: np.ndarray  # (F_X, 3) source faces
+    edges: np.ndarray  # (E_X, 2) source edges
+    flipped: np.ndarray  # (F_X,) bool
+    stretched: np.ndarray  # (E_X,) bool
+
+    @classmethod
+    def of(cls, vertex: np.ndarray, context: _Rounding) -> _MendStatus:
+        """The status of the vertex map ``vertex`` (V_X,)."""
+        source = context.source
+        return cls(
+            source.faces,
+            source.edges,
+            flipped_triangles(vertex[source.faces], context.target, context.normals),
+            _stretched_edges(source.edges, vertex, context),
+        )
+
+    def vertices(self) -> np.ndarray:
+        """Source vertices of flipped image triangles and stretched image edges, sorted (N,)."""
+        return np.union1d(self.faces[self.flipped], self.edges[self.stretched])
+
+    def update(self, vertex: np.ndarray, changed: np.ndarray, context: _Rounding) -> None:
+        """Re-score the triangles and edges with a corner in ``changed`` (V_X,) bool; the rest keep theirs."""
+        faces, edges = self.faces, self.edges
+        faces_hit = np.flatnonzero(changed[faces].any(axis=1))
+        self.flipped[faces_hit] = flipped_triangles(vertex[faces[faces_hit]], context.target, context.normals)
+        edges_hit = np.flatnonzero(changed[edges].any(axis=1))
+        self.stretched[edges_hit] = _stretched_edges(edges[edges_hit], vertex, context)
+
+
+@dataclass
+class _ChoiceLedger:
+    """When each source vertex last chose its target vertex, and when its neighbourhood last moved.
+
+    A choice reads only the vertex's own start and image point and the current target
+    vertices of its source neighbours (:func:`_best_choices`). A vertex whose neighbours have
+    not moved since it chose would choose the same again, so it is skipped: the result is that
+    of re-deciding every candidate in every sweep, with only the work that can change it.
+    """
+
+    chose_at: np.ndarray  # (V_X,) int64, the step of the last choice, -1 before any
+    moved_at: np.ndarray  # (V_X,) int64, the last step a neighbour moved, 0 before any
+    step: int = 0
+
+    @classmethod
+    def empty(cls, n_verts: int) -> _ChoiceLedger:
+        return cls(np.full(n_verts, -1, dtype=np.int64), np.zeros(n_verts, dtype=np.int64))
+
+    def stale(self, vertices: np.ndarray) -> np.ndarray:
+        """Whether each of ``vertices`` (N,) has a neighbour that moved since its last choice, bool (N,)."""
+        return self.moved_at[vertices] > self.chose_at[vertices]
+
+    def record(self, chosen: np.ndarray, moved: np.ndarray, neighbours: np.ndarray) -> None:
+        """Note a group's choice: ``chosen`` (N,) chose, ``moved`` (M,) of them took a new vertex.
+
+        ``neighbours`` (V_X, 1 + max degree) holds each source vertex and its neighbours.
+        """
+        self.step += 1
+        self.chose_at[chosen] = self.step
+        self.moved_at[neighbours[moved].ravel()] = self.step
 
 
 def independent_groups(vertices: np.ndarray, edges: np.ndarray, n_verts: int) -> list[np.ndarray]:
