@@ -34,6 +34,7 @@ import logging
 import statistics
 import sys
 import time
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,7 +43,8 @@ from bench_scaling import format_row, write_rows
 from scipy.spatial import cKDTree
 
 import spidermatch
-from spidermatch.data.datasets import ShapeFolder, read_pairs_file
+from spidermatch.data.datasets import Shape, ShapeFolder, read_pairs_file
+from spidermatch.data.synthetic import random_rotation
 from spidermatch.eval.errors import pointwise_geodesic_errors
 from spidermatch.geometry.io import load_mesh
 from spidermatch.geometry.mesh import Mesh
@@ -67,19 +69,39 @@ def area_iou(target: Mesh, predicted: np.ndarray, truth: np.ndarray) -> float:
     return float(areas[predicted & truth].sum() / areas[predicted | truth].sum())
 
 
-def run_pair(part_name: str, parts: Path, folder: ShapeFolder, target_name: str, args, extractor) -> dict:
-    """Match one part to one whole shape and score it."""
-    part, to_original, whole, position, kept_area = load_part(parts, folder, part_name)
-    target = folder.load(target_name)
+@dataclass(frozen=True)
+class PartAgainstWhole:
+    """One part (as presented to the matcher) against one whole shape, and what scores it."""
+
+    part: Mesh
+    target: Shape  # the whole target shape (mesh and reference points)
+    sources: np.ndarray  # (K,) part vertex of each reference point the part kept
+    kept_rows: np.ndarray  # (R,) bool: which of the target's reference points those are
+    row: dict  # the run's row so far: part, target, kept area (and the turn)
+
+
+def part_against_whole(
+    parts: Path, folder: ShapeFolder, part_name: str, target_name: str, turn_seed: int | None
+) -> PartAgainstWhole:
+    """Load a part and a whole target; with ``turn_seed``, the part turned and moved (:func:`turned_copy`)."""
+    part, _, whole, position, kept_area = load_part(parts, folder, part_name)
     kept_rows = position[whole.corr] >= 0
     row = {"part": part_name, "target": target_name, "kept_area": kept_area}
+    if turn_seed is not None:
+        part, row["turned_degrees"] = turned_copy(part, turn_seed)
+    return PartAgainstWhole(part, folder.load(target_name), position[whole.corr[kept_rows]], kept_rows, row)
+
+
+def run_pair(part_name: str, parts: Path, folder: ShapeFolder, target_name: str, args, extractor) -> dict:
+    """Match one part to one whole shape and score it."""
+    run = part_against_whole(parts, folder, part_name, target_name, args.turn_parts)
+    part, target, kept_rows, row = run.part, run.target, run.kept_rows, run.row
     result = _timed_match(
         part, target.mesh, args, extractor, "auto" if args.mode == "partial" else "off", row
     )
     if result.dense_map is None:
         return row
-    sources = position[whole.corr[kept_rows]]
-    errors = pointwise_geodesic_errors(target.mesh, result.dense_map[sources], target.corr[kept_rows])
+    errors = pointwise_geodesic_errors(target.mesh, result.dense_map[run.sources], target.corr[kept_rows])
     row["dense_error"] = round(float(errors.mean()), 4)
     truth = true_overlap(target.mesh, target.corr, kept_rows)
     covered = result.dense.covered
@@ -88,6 +110,16 @@ def run_pair(part_name: str, parts: Path, folder: ShapeFolder, target_name: str,
         covered[result.dense_map] = True
     row["iou"] = round(area_iou(target.mesh, covered, truth), 4)
     return row
+
+
+def turned_copy(part: Mesh, seed: int) -> tuple[Mesh, float]:
+    """``part`` in a random rotation (seeded by ``seed`` and its name) and moved, as a scanner may
+    give it, and the rotation's angle in degrees."""
+    rng = np.random.default_rng([seed, zlib.crc32(part.name.encode())])
+    rotation = random_rotation(rng)
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
+    moved = part.verts @ rotation.T + rng.normal(scale=np.sqrt(part.area), size=3)
+    return Mesh(moved, part.faces, part.name), round(angle, 1)
 
 
 def _timed_match(source: Mesh, target: Mesh, args, extractor, partial: str, row: dict):
@@ -252,12 +284,39 @@ def summary(rows: list[dict]) -> dict:
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_part_options(parser: argparse.ArgumentParser, checkpoint_help: str) -> None:
+    """The options that say which parts to run against which shapes, with which network."""
     parser.add_argument("--data", required=True, help="the FAUST_r-style folder the parts were cut from")
     parser.add_argument("--parts", required=True, type=Path, help="the output folder of make_partial.py")
     parser.add_argument("--pairs", required=True, help="pairs file: 'a b' per line")
-    parser.add_argument("--checkpoint", required=True, help="a trained network, or 'wks' for WKS descriptors")
+    parser.add_argument("--checkpoint", required=True, help=checkpoint_help)
+    parser.add_argument(
+        "--turn-parts",
+        type=int,
+        default=None,
+        metavar="SEED",
+        help="present every part in a random rotation (seeded by SEED and the part's name), moved",
+    )
+
+
+def part_manifest(parts: Path) -> list[dict]:
+    """The parts ``make_partial.py`` wrote to ``parts``: one dict per part (its name, shape, kind)."""
+    return json.loads((parts / "partial.json").read_text())["parts"]
+
+
+def partial_to_full_runs(manifest: list[dict], pairs: str, folder: ShapeFolder) -> list[tuple[str, str]]:
+    """(part, whole shape) of every partial-to-full run: each part against the other shape of each pair."""
+    return [
+        (row["part"], b if row["shape"] == a else a)
+        for a, b in read_pairs_file(pairs, folder.names)
+        for row in manifest
+        if row["shape"] in (a, b)
+    ]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_part_options(parser, "a trained network, or 'wks' for WKS descriptors")
     parser.add_argument(
         "--mode",
         choices=("partial", "whole", "both"),
@@ -280,13 +339,8 @@ def main(argv: list[str] | None = None) -> int:
     from features.learned import LearnedExtractor
 
     folder = ShapeFolder(args.data)
-    manifest = json.loads((args.parts / "partial.json").read_text())["parts"]
-    runs = [
-        (row["part"], b if row["shape"] == a else a)
-        for a, b in read_pairs_file(args.pairs, folder.names)
-        for row in manifest
-        if row["shape"] in (a, b)
-    ]
+    manifest = part_manifest(args.parts)
+    runs = partial_to_full_runs(manifest, args.pairs, folder)
     if args.mode == "both":  # each part of a against each part of b: two scans of two people
         runs = [
             (row["part"], other["part"])
@@ -304,15 +358,27 @@ def main(argv: list[str] | None = None) -> int:
         runs = runs[first:stop]
     extractor = "wks" if args.checkpoint == "wks" else LearnedExtractor(args.checkpoint)
     columns = OVERLAP_COLUMNS if args.mode == "both" else COLUMNS
+    run = run_overlap_pair if args.mode == "both" else run_pair
+    run_and_write(
+        runs,
+        lambda part, target: run(part, args.parts, folder, target, args, extractor),
+        columns,
+        summary,
+        args.out,
+    )
+    return 0
+
+
+def run_and_write(runs: list[tuple[str, str]], run_one, columns: tuple, summarise, out: Path) -> list[dict]:
+    """Run every (part, target), printing each row and rewriting ``out`` (rows and summary) after each."""
     print(" | ".join(columns), flush=True)
     rows = []
     for part_name, target_name in runs:
-        run = run_overlap_pair if args.mode == "both" else run_pair
-        rows.append(run(part_name, args.parts, folder, target_name, args, extractor))
+        rows.append(run_one(part_name, target_name))
         print(format_row(rows[-1], columns, 4), flush=True)
-        write_rows(args.out, rows, {"summary": summary(rows)})
-    print(json.dumps(summary(rows), indent=2))
-    return 0
+        write_rows(out, rows, {"summary": summarise(rows)})
+    print(json.dumps(summarise(rows), indent=2))
+    return rows
 
 
 if __name__ == "__main__":
