@@ -314,7 +314,23 @@ def partial_to_full_runs(manifest: list[dict], pairs: str, folder: ShapeFolder) 
     ]
 
 
+def merged_halves(paths: list[Path], out: Path, note: str) -> dict:
+    """Join the results of runs made in slices (``--runs``, e.g. one per core) into one file.
+
+    The rows in the given order, the summary computed again over all of them, every slice's
+    command line, and ``note`` (how they were run). Returns the summary.
+    """
+    parts = [json.loads(path.read_text()) for path in paths]
+    rows = [row for part in parts for row in part["rows"]]
+    merged = {"argv": [part["argv"] for part in parts], "note": note, "summary": summary(rows)}
+    write_rows(out, rows, merged)  # its "argv" replaces this command's
+    return merged["summary"]
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["merge"]:
+        return _merge_command(argv[1:])
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_part_options(parser, "a trained network, or 'wks' for WKS descriptors")
     parser.add_argument(
@@ -379,6 +395,17 @@ def run_and_write(runs: list[tuple[str, str]], run_one, columns: tuple, summaris
         write_rows(out, rows, {"summary": summarise(rows)})
     print(json.dumps(summarise(rows), indent=2))
     return rows
+
+
+def _merge_command(argv: list[str]) -> int:
+    """``bench_partial.py merge --out X.json --note "..." A.json B.json``: see :func:`merged_halves`."""
+    parser = argparse.ArgumentParser(prog="bench_partial.py merge", description=merged_halves.__doc__)
+    parser.add_argument("slices", nargs="+", type=Path, help="result files of --runs slices, in order")
+    parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--note", default="", help="how the slices were run (written beside them)")
+    args = parser.parse_args(argv)
+    print(json.dumps(merged_halves(args.slices, args.out, args.note), indent=2))
+    return 0
 
 
 if __name__ == "__main__":
