@@ -86,3 +86,27 @@ def test_a_cold_cache_run_gets_its_own_empty_operator_cache(tmp_path):
     log = tmp_path / "log.txt"
     code, _, _ = run_process(command, log, tmp_path / "cache")
     assert code == 0 and log.read_text().strip() == str(tmp_path / "cache")
+
+
+def test_partial_bench_slices_merge_into_one_table(tmp_path):
+    import json
+
+    from bench_partial import main
+
+    def row(part, status, error):
+        return {"part": part, "target": "t", "status": status, "total_s": 10.0, "solve_s": 2.0,
+                "dense_error": error, "iou": 0.5, "verdict": "plausible"}  # fmt: skip
+
+    slices = [tmp_path / "a.json", tmp_path / "b.json"]
+    contents = [[row("s-plane", "optimal", 0.02), row("s-holes", "optimal", 0.04)],
+                [row("u-view", "feasible", 0.6)]]  # fmt: skip
+    for number, (path, rows) in enumerate(zip(slices, contents)):
+        path.write_text(json.dumps({"argv": ["bench_partial.py", "--runs", str(number)], "rows": rows}))
+    out = tmp_path / "all.json"
+    assert main(["merge", *map(str, slices), "--out", str(out), "--note", "side by side"]) == 0
+    merged = json.loads(out.read_text())
+    assert [r["part"] for r in merged["rows"]] == ["s-plane", "s-holes", "u-view"]
+    assert merged["argv"] == [["bench_partial.py", "--runs", "0"], ["bench_partial.py", "--runs", "1"]]
+    assert merged["note"] == "side by side" and out.with_suffix(".csv").read_text().count("\n") == 4
+    assert merged["summary"]["all"]["runs"] == 3 and merged["summary"]["all"]["optimal"] == 2
+    assert merged["summary"]["all"]["median_dense_error"] == 0.04 and merged["summary"]["view"]["runs"] == 1
