@@ -196,7 +196,7 @@ class OrientationSearch:
         the ``faust_r_unsup_partial`` network), the nearest-feature error of the chosen
         orientation (``bench_partial_features.py``) is 0.174 on average, against 0.207 for the
         residual alone and 0.126 for the best of all candidates; with the parts presented turned
-        at random (``--turn-parts 0``), 0.178 against 0.218. The mean similarity alone chose worse
+        at random (``--turn-parts 0``), 0.177 against 0.218. The mean similarity alone chose worse
         than the residual on 25 cut shapes earlier (0.211 against 0.183).
 
         Parameters
