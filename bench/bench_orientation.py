@@ -31,17 +31,12 @@ sys.path.insert(0, str(ROOT / "bench"))
 from bench_scaling import write_rows  # noqa: E402
 
 from spidermatch.data.datasets import open_dataset  # noqa: E402
-from spidermatch.data.synthetic import random_rotation  # noqa: E402
+from spidermatch.data.synthetic import random_rotation, rotation_angle  # noqa: E402
 from spidermatch.geometry.io import load_mesh  # noqa: E402
 from spidermatch.geometry.mesh import Mesh  # noqa: E402
 from train.data import select_names  # noqa: E402
 
 LYING = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # 90 degrees about x
-
-
-def rotation_angle(matrix: np.ndarray) -> float:
-    """Angle of a rotation matrix (3, 3), degrees."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(matrix) - 1) / 2, -1, 1))))
 
 
 def presented(extractor, mesh: Mesh) -> tuple[np.ndarray, np.ndarray, str]:

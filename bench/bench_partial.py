@@ -44,7 +44,7 @@ from scipy.spatial import cKDTree
 
 import spidermatch
 from spidermatch.data.datasets import Shape, ShapeFolder, read_pairs_file
-from spidermatch.data.synthetic import random_rotation
+from spidermatch.data.synthetic import random_rotation, rotation_angle
 from spidermatch.eval.errors import pointwise_geodesic_errors
 from spidermatch.geometry.io import load_mesh
 from spidermatch.geometry.mesh import Mesh
@@ -117,9 +117,8 @@ def turned_copy(part: Mesh, seed: int) -> tuple[Mesh, float]:
     give it, and the rotation's angle in degrees."""
     rng = np.random.default_rng([seed, zlib.crc32(part.name.encode())])
     rotation = random_rotation(rng)
-    angle = float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
     moved = part.verts @ rotation.T + rng.normal(scale=np.sqrt(part.area), size=3)
-    return Mesh(moved, part.faces, part.name), round(angle, 1)
+    return Mesh(moved, part.faces, part.name), round(rotation_angle(rotation), 1)
 
 
 def _timed_match(source: Mesh, target: Mesh, args, extractor, partial: str, row: dict):
@@ -199,7 +198,7 @@ def load_part(parts: Path, folder: ShapeFolder, name: str) -> tuple:
         The part's share of the whole's area.
 
     """
-    entry = {row["part"]: row for row in json.loads((parts / "partial.json").read_text())["parts"]}[name]
+    entry = {row["part"]: row for row in part_manifest(parts)}[name]
     to_original = np.load(parts / "maps" / f"{name}.npy")
     whole = folder.load(entry["shape"])
     position = -np.ones(whole.mesh.n_verts, dtype=np.int64)
@@ -314,7 +313,7 @@ def partial_to_full_runs(manifest: list[dict], pairs: str, folder: ShapeFolder) 
     ]
 
 
-def merged_halves(paths: list[Path], out: Path, note: str) -> dict:
+def merged_slices(paths: list[Path], out: Path, note: str) -> dict:
     """Join the results of runs made in slices (``--runs``, e.g. one per core) into one file.
 
     The rows in the given order, the summary computed again over all of them, every slice's
@@ -398,13 +397,13 @@ def run_and_write(runs: list[tuple[str, str]], run_one, columns: tuple, summaris
 
 
 def _merge_command(argv: list[str]) -> int:
-    """``bench_partial.py merge --out X.json --note "..." A.json B.json``: see :func:`merged_halves`."""
-    parser = argparse.ArgumentParser(prog="bench_partial.py merge", description=merged_halves.__doc__)
+    """``bench_partial.py merge --out X.json --note "..." A.json B.json``: see :func:`merged_slices`."""
+    parser = argparse.ArgumentParser(prog="bench_partial.py merge", description=merged_slices.__doc__)
     parser.add_argument("slices", nargs="+", type=Path, help="result files of --runs slices, in order")
     parser.add_argument("--out", required=True, type=Path)
     parser.add_argument("--note", default="", help="how the slices were run (written beside them)")
     args = parser.parse_args(argv)
-    print(json.dumps(merged_halves(args.slices, args.out, args.note), indent=2))
+    print(json.dumps(merged_slices(args.slices, args.out, args.note), indent=2))
     return 0
 
 

@@ -74,6 +74,11 @@ def random_rotation(rng: np.random.Generator) -> np.ndarray:
     return q
 
 
+def rotation_angle(matrix: np.ndarray) -> float:
+    """Angle of a rotation matrix (3, 3), degrees."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(matrix) - 1.0) / 2.0, -1.0, 1.0))))
+
+
 def fibonacci_sphere(n: int) -> np.ndarray:
     """``n`` nearly uniform points on the unit sphere, shape (n, 3)."""
     index = np.arange(n) + 0.5

@@ -120,7 +120,7 @@ def unfolded_vertices(
             changed[moved] = True
         if not changed.any():
             break
-        status.update(vertex, changed, context)
+        status.update(vertex, changed)
     return vertex
 
 
@@ -128,29 +128,29 @@ def unfolded_vertices(
 class _MendStatus:
     """Which image triangles are flipped and which image edges are stretched, kept up to date."""
 
-    faces: np.ndarray  # (F_X, 3) source faces
-    edges: np.ndarray  # (E_X, 2) source edges
-    flipped: np.ndarray  # (F_X,) bool
-    stretched: np.ndarray  # (E_X,) bool
+    context: _Rounding
+    flipped: np.ndarray  # (F_X,) bool, per source face
+    stretched: np.ndarray  # (E_X,) bool, per source edge
 
     @classmethod
     def of(cls, vertex: np.ndarray, context: _Rounding) -> _MendStatus:
         """The status of the vertex map ``vertex`` (V_X,)."""
         source = context.source
         return cls(
-            source.faces,
-            source.edges,
+            context,
             flipped_triangles(vertex[source.faces], context.target, context.normals),
             _stretched_edges(source.edges, vertex, context),
         )
 
     def vertices(self) -> np.ndarray:
         """Source vertices of flipped image triangles and stretched image edges, sorted (N,)."""
-        return np.union1d(self.faces[self.flipped], self.edges[self.stretched])
+        source = self.context.source
+        return np.union1d(source.faces[self.flipped], source.edges[self.stretched])
 
-    def update(self, vertex: np.ndarray, changed: np.ndarray, context: _Rounding) -> None:
+    def update(self, vertex: np.ndarray, changed: np.ndarray) -> None:
         """Re-score the triangles and edges with a corner in ``changed`` (V_X,) bool; the rest keep theirs."""
-        faces, edges = self.faces, self.edges
+        context = self.context
+        faces, edges = context.source.faces, context.source.edges
         faces_hit = np.flatnonzero(changed[faces].any(axis=1))
         self.flipped[faces_hit] = flipped_triangles(vertex[faces[faces_hit]], context.target, context.normals)
         edges_hit = np.flatnonzero(changed[edges].any(axis=1))
