@@ -28,6 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from spidermatch.eval.errors import pointwise_geodesic_errors
 from spidermatch.geometry.geodesics import GeodesicDistances
@@ -250,8 +251,6 @@ def inconsistent_truth(source: Mesh, target: Mesh, src_corr: np.ndarray, tgt_cor
         True where the point's truth disagrees with most of its neighbours' (False for a point
         without neighbours).
     """
-    from scipy.spatial import cKDTree
-
     src_corr, tgt_corr = np.asarray(src_corr, np.int64), np.asarray(tgt_corr, np.int64)
     radius = TRUTH_NEIGHBOURHOOD * np.sqrt(source.area)
     pairs = cKDTree(source.verts[src_corr]).query_pairs(radius, output_type="ndarray")
