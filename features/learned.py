@@ -25,6 +25,7 @@ from features.orientation import (
     Orientation,
     OrientationSearch,
     oriented_outputs,
+    presented_input,
     probe_input,
     rotated_input,
     search_from_payload,
@@ -298,7 +299,9 @@ class LearnedExtractor:
         if self.adapt_steps:
             logger.warning("%s: test-time adaptation skipped for a partial source", part.name)
         feat_whole = self._features(self.network, whole)
-        return self._part_onto(part, feat_whole, whole.verts, whole.area), feat_whole
+        shown = self.orientations.get(whole.name)
+        whole_points = whole.verts if shown is None else whole.verts @ shown.rotation.double().numpy().T
+        return self._part_onto(part, feat_whole, whole_points, whole.area), feat_whole
 
     def parts_features(self, part_x: Mesh, part_y: Mesh) -> tuple[np.ndarray, np.ndarray]:
         """Descriptors of two parts of one surface (partial-to-partial), in one unit of length.
@@ -324,18 +327,22 @@ class LearnedExtractor:
             feat_y = normalise_rows(self.network(shape_y.features, shape_y.ops).double().numpy())
         return self._part_onto(part_x, feat_y, part_y.verts, unit_area), feat_y
 
-    def _part_onto(self, part: Mesh, feat_other: np.ndarray, other_verts: np.ndarray, unit_area: float):
-        """Descriptors (V_part, C_out) of ``part`` in ``unit_area``'s unit, turned onto the other shape."""
+    def _part_onto(self, part: Mesh, feat_other: np.ndarray, other_points: np.ndarray, unit_area: float):
+        """Descriptors (V_part, C_out) of ``part`` in ``unit_area``'s unit, turned and placed on the other.
+
+        ``other_points`` (V_other, 3) are the other shape's vertices as its features were computed
+        (rotated by its own orientation, in the same unit as given).
+        """
         shape = prepare_shape(part, self.config, use_cache=self.use_cache, scale_area=unit_area)
         if self.orientation is not None:
             probe = probe_input(part, self.config, self.train_faces, self.use_cache, scale_area=unit_area)
             chosen = self.orientation.best_for_part(
-                self.network, probe, torch.from_numpy(feat_other).float(), other_verts / np.sqrt(unit_area)
+                self.network, probe, torch.from_numpy(feat_other).float(), other_points / np.sqrt(unit_area)
             )
             self.orientations[part.name] = chosen
             if chosen.degrees != 0.0:
                 logger.info("%s: input %s (orientation search for a part)", part.name, chosen.describe())
-            shape = rotated_input(shape, chosen.rotation)
+            shape = presented_input(shape, chosen)
         with torch.no_grad():
             return normalise_rows(self.network(shape.features, shape.ops).double().numpy())
 

@@ -35,6 +35,13 @@ from spidermatch.geometry.partial import rigid_fit_residual
 
 COORDINATE_INPUTS = ("xyz", "wks_xyz")
 UP_AXES = ("x", "y", "z")
+PLACEMENT_STEP = 0.15  # spacing of the part's trial placements, in the whole's sqrt(area)
+PLACEMENT_REACH = (
+    0.75  # the part's centre is tried up to this share of the whole's half extent off its centre
+)
+PLACED_ORIENTATIONS = (
+    3  # the part's best orientations (centred on itself) that are then tried in every placement
+)
 
 
 def turn_about_vertical(angle: float, up_axis: str = "y") -> torch.Tensor:
@@ -61,6 +68,33 @@ def rotated_input(shape: ShapeInput, rotation: torch.Tensor) -> ShapeInput:
     return replace(shape, features=rotated_coordinates(shape.features, rotation))
 
 
+def presented_input(shape: ShapeInput, orientation: Orientation) -> ShapeInput:
+    """``shape`` with its coordinate columns rotated, then moved by the orientation's offset."""
+    features = rotated_coordinates(shape.features, orientation.rotation)
+    if any(orientation.offset):
+        offset = torch.tensor(orientation.offset, dtype=features.dtype)
+        features = torch.cat([features[:, :-3], features[:, -3:] + offset], dim=1)
+    return replace(shape, features=features)
+
+
+def placement_offsets(whole_points: np.ndarray) -> np.ndarray:
+    """Trial positions (P, 3) of a part's centre relative to its whole's centre, (0, 0, 0) first.
+
+    A part's coordinates are centred on the part itself, so the network cannot tell where on
+    the whole it lies (the upper or the lower half, the left or the right side). The
+    placements cover the middle ``PLACEMENT_REACH`` of the whole's extent along each axis of
+    ``whole_points`` (the whole as the network is shown it, in its unit of length), about
+    ``PLACEMENT_STEP`` apart, at least one step to either side.
+    """
+    half_extent = (whole_points.max(axis=0) - whole_points.min(axis=0)) / 2
+    axes = []
+    for half in PLACEMENT_REACH * half_extent:
+        steps = max(1, int(round(half / PLACEMENT_STEP)))
+        axes.append(np.linspace(-half, half, 2 * steps + 1))
+    offsets = np.array(list(itertools.product(*axes)))
+    return offsets[np.argsort(np.linalg.norm(offsets, axis=1), kind="stable")]
+
+
 def axis_assignments() -> list[torch.Tensor]:
     """The 24 proper signed permutation matrices (3, 3): the rotations of a cube."""
     found = []
@@ -78,21 +112,27 @@ class Orientation:
     """A candidate orientation: the rotation (3, 3) applied to the input coordinates and its name.
 
     ``degrees`` is the turn about the vertical axis for those candidates, None for the
-    principal-axis alignments.
+    principal-axis alignments. ``offset`` (3,) moves a part's rotated coordinates, so that it
+    is shown where on its whole it lies (:func:`placement_offsets`); (0, 0, 0) for whole shapes.
     """
 
     rotation: torch.Tensor
     degrees: float | None
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def describe(self) -> str:
         """How the input was presented, for logs."""
         if self.degrees is not None:
-            return f"turned {self.degrees:.0f} degrees about the vertical axis"
-        angle, axis = rotation_angle_axis(self.rotation)
-        return (
-            f"rotated {angle:.0f} degrees about the axis ({axis[0]:.2f}, {axis[1]:.2f}, {axis[2]:.2f}) "
-            "(its principal axes onto the training reference's)"
-        )
+            said = f"turned {self.degrees:.0f} degrees about the vertical axis"
+        else:
+            angle, axis = rotation_angle_axis(self.rotation)
+            said = (
+                f"rotated {angle:.0f} degrees about the axis ({axis[0]:.2f}, {axis[1]:.2f}, {axis[2]:.2f}) "
+                "(its principal axes onto the training reference's)"
+            )
+        if any(self.offset):
+            said += ", its centre placed at ({:.2f}, {:.2f}, {:.2f}) from the whole's".format(*self.offset)
+        return said
 
 
 def rotation_angle_axis(rotation: torch.Tensor) -> tuple[float, list[float]]:
@@ -185,19 +225,17 @@ class OrientationSearch:
     def best_for_part(
         self, network: DiffusionNet, part: ShapeInput, whole: torch.Tensor, whole_points: np.ndarray
     ) -> Orientation:
-        """The orientation of a partial shape whose feature matches are most alike and most rigid.
+        """The orientation and place of a partial shape whose feature matches are most alike and rigid.
 
         The unsupervised loss of :meth:`search` compares two whole shapes. A part is judged
         instead by where its vertices' features find their nearest features on the whole: each
         candidate scores the median distance of those partners from where a single rigid motion
         puts the vertices (:func:`spidermatch.geometry.partial.rigid_fit_residual`) times one
-        minus the mean similarity of the matched features; the smallest wins (no labels). On the
-        60 runs of ``bench_partial.py`` (FAUST_r validation parts against their paired shapes,
-        the ``faust_r_unsup_partial`` network), the nearest-feature error of the chosen
-        orientation (``bench_partial_features.py``) is 0.174 on average, against 0.207 for the
-        residual alone and 0.126 for the best of all candidates; with the parts presented turned
-        at random (``--turn-parts 0``), 0.177 against 0.218. The mean similarity alone chose worse
-        than the residual on 25 cut shapes earlier (0.211 against 0.183).
+        minus the mean similarity of the matched features; the smallest wins (no labels). Every
+        orientation is scored with the part centred on itself; the ``PLACED_ORIENTATIONS`` best
+        are then scored again with the part's centre at every trial placement on the whole
+        (:func:`placement_offsets`), since a part centred on itself hides which region of the
+        whole it is (docs/partial.md, "Orientation and placement of a part").
 
         Parameters
         ----------
@@ -208,20 +246,30 @@ class OrientationSearch:
         whole : torch.Tensor, shape (V, C_out)
             Features of the whole, L2-normalised rows.
         whole_points : np.ndarray, shape (V, 3)
-            The whole's vertices in the same unit.
+            The whole's vertices in the same unit, as the network was shown them (rotated
+            by the whole's own orientation), which sets the trial placements.
         """
         points = part.features[:, -XYZ_CHANNELS:].double().numpy()
-        best = (math.inf, UNTURNED)
+
+        def score(candidate: Orientation) -> float:
+            out = network(presented_input(part, candidate).features, part.ops)
+            similarity, partners = (torch.nn.functional.normalize(out, dim=-1) @ whole.T).max(dim=1)
+            residual = rigid_fit_residual(points, whole_points[partners.numpy()])
+            return residual * (1.0 - similarity.double().mean().item())
+
         with torch.no_grad():
-            for candidate in self.candidates(part):
-                out = network(rotated_input(part, candidate.rotation).features, part.ops)
-                out = torch.nn.functional.normalize(out, dim=-1)
-                similarity, partners = (out @ whole.T).max(dim=1)
-                residual = rigid_fit_residual(points, whole_points[partners.numpy()])
-                score = residual * (1.0 - similarity.double().mean().item())
-                if score < best[0]:
-                    best = (score, candidate)
-        return best[1]
+            centred = sorted(
+                ((score(candidate), k, candidate) for k, candidate in enumerate(self.candidates(part))),
+                key=lambda item: item[:2],
+            )
+            best = centred[0]
+            for _, k, candidate in centred[:PLACED_ORIENTATIONS]:
+                for offset in placement_offsets(whole_points)[1:]:
+                    placed = replace(candidate, offset=tuple(float(v) for v in offset))
+                    found = (score(placed), k, placed)
+                    if found[0] < best[0]:
+                        best = found
+        return best[2]
 
     def _best(
         self, network: DiffusionNet, reference: torch.Tensor, shape: ShapeInput

@@ -164,3 +164,70 @@ def test_training_stores_the_reference_and_validates_with_the_search(tmp_path):
     assert stored["turns"] == 4 and stored["name"] == "creature_000" and stored["up_axis"] == "y"
     assert stored["verts"].shape[1] == 3 and stored["faces"].shape[1] == 3
     assert LearnedExtractor(str(tmp_path / "best.pt"), use_cache=False).orientation.turns == 4
+
+
+# --- where a part lies on its whole: the placement search of best_for_part ---------------------
+
+
+def test_placements_start_centred_and_cover_the_middle_of_the_whole_on_every_axis():
+    from features.orientation import PLACEMENT_REACH, PLACEMENT_STEP, placement_offsets
+
+    whole = np.array([[-0.2, -0.6, -0.1], [0.2, 0.6, 0.1]])  # a standing body's box, its unit
+    offsets = placement_offsets(whole)
+    assert np.all(offsets[0] == 0.0)
+    for axis, half in enumerate((0.2, 0.6, 0.1)):
+        values = np.unique(offsets[:, axis])
+        assert values.min() == pytest.approx(-PLACEMENT_REACH * half)
+        assert values.max() == pytest.approx(PLACEMENT_REACH * half)
+        assert len(values) >= 3 and len(values) % 2 == 1  # at least one step either side, and the centre
+        assert np.diff(values).max() <= 1.5 * PLACEMENT_STEP
+    assert len(offsets) == len(np.unique(offsets, axis=0))
+
+
+def test_a_placed_input_is_rotated_then_moved_and_keeps_its_other_channels():
+    from features.diffusion_net import ShapeInput
+    from features.orientation import Orientation, presented_input, rotated_input
+
+    features = torch.randn(10, 5)
+    shape = ShapeInput(features, None)
+    turn = turn_about_vertical(math.radians(90.0))
+    shown = presented_input(shape, Orientation(turn, 90.0, (0.1, -0.2, 0.3)))
+    expected = rotated_input(shape, turn).features[:, -3:] + torch.tensor([0.1, -0.2, 0.3])
+    torch.testing.assert_close(shown.features[:, -3:], expected)
+    torch.testing.assert_close(shown.features[:, :2], features[:, :2])
+    torch.testing.assert_close(
+        presented_input(shape, Orientation(turn, 90.0)).features, rotated_input(shape, turn).features
+    )
+    assert "placed at (0.10, -0.20, 0.30)" in Orientation(turn, 90.0, (0.1, -0.2, 0.3)).describe()
+
+
+class _PositionNetwork:
+    """A stand-in network whose descriptors encode where a vertex is shown (random Fourier features)."""
+
+    def __init__(self):
+        self.frequencies = torch.randn(3, 64, generator=torch.Generator().manual_seed(0)) * 4.0
+
+    def __call__(self, features, ops):
+        phase = features[:, -3:].float() @ self.frequencies
+        return torch.cat([phase.sin(), phase.cos()], dim=1)
+
+
+def test_a_part_centred_on_itself_is_placed_where_it_lies_on_its_whole(creature):
+    """Descriptors that depend on absolute position find the part's place: the upper third of a
+    creature, centred on itself, is shown at (about) its true offset from the whole's centre."""
+    from features.diffusion_net import ShapeInput
+    from features.orientation import PLACEMENT_STEP
+
+    whole_points = creature.verts - creature.verts.mean(axis=0)
+    whole_points = whole_points / np.sqrt(creature.area)
+    upper = whole_points[:, 1] > np.quantile(whole_points[:, 1], 0.66)
+    part_points = whole_points[upper]
+    true_offset = part_points.mean(axis=0)
+    part = ShapeInput(torch.from_numpy(part_points - true_offset).float(), None)
+    net = _PositionNetwork()
+    whole = torch.nn.functional.normalize(net(torch.from_numpy(whole_points).float(), None), dim=-1)
+    search = OrientationSearch(reference=None, turns=1, loss=None)
+    chosen = search.best_for_part(net, part, whole, whole_points)
+    assert chosen.degrees == 0.0
+    assert np.abs(np.array(chosen.offset) - true_offset).max() <= PLACEMENT_STEP
+    assert abs(chosen.offset[1] - true_offset[1]) < abs(true_offset[1])  # closer than centred on itself
