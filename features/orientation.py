@@ -35,13 +35,12 @@ from spidermatch.geometry.partial import rigid_fit_residual
 
 COORDINATE_INPUTS = ("xyz", "wks_xyz")
 UP_AXES = ("x", "y", "z")
-PLACEMENT_STEP = 0.15  # spacing of the part's trial placements, in the whole's sqrt(area)
-PLACEMENT_REACH = (
-    0.75  # the part's centre is tried up to this share of the whole's half extent off its centre
-)
-PLACED_ORIENTATIONS = (
-    3  # the part's best orientations (centred on itself) that are then tried in every placement
-)
+# A part's trial placements (placement_offsets): about PLACEMENT_STEP apart (the whole's
+# sqrt(area)), its centre up to PLACEMENT_REACH of the whole's half extent off the whole's
+# centre, for the PLACED_ORIENTATIONS best orientations found with the part centred on itself.
+PLACEMENT_STEP = 0.15
+PLACEMENT_REACH = 0.75
+PLACED_ORIENTATIONS = 3
 
 
 def turn_about_vertical(angle: float, up_axis: str = "y") -> torch.Tensor:
