@@ -69,11 +69,13 @@ def rotated_input(shape: ShapeInput, rotation: torch.Tensor) -> ShapeInput:
 
 def presented_input(shape: ShapeInput, orientation: Orientation) -> ShapeInput:
     """``shape`` with its coordinate columns rotated, then moved by the orientation's offset."""
-    features = rotated_coordinates(shape.features, orientation.rotation)
-    if any(orientation.offset):
-        offset = torch.tensor(orientation.offset, dtype=features.dtype)
-        features = torch.cat([features[:, :-3], features[:, -3:] + offset], dim=1)
-    return replace(shape, features=features)
+    turned = rotated_input(shape, orientation.rotation)
+    if not any(orientation.offset):
+        return turned
+    offset = torch.tensor(orientation.offset, dtype=turned.features.dtype)
+    return replace(
+        turned, features=torch.cat([turned.features[:, :-3], turned.features[:, -3:] + offset], dim=1)
+    )
 
 
 def placement_offsets(whole_points: np.ndarray) -> np.ndarray:
@@ -256,19 +258,21 @@ class OrientationSearch:
             residual = rigid_fit_residual(points, whole_points[partners.numpy()])
             return residual * (1.0 - similarity.double().mean().item())
 
+        offsets = placement_offsets(whole_points)[1:]  # the centred placement is scored first
         with torch.no_grad():
+            # stable sort: of equal scores the earlier candidate wins, as before the placements
             centred = sorted(
-                ((score(candidate), k, candidate) for k, candidate in enumerate(self.candidates(part))),
-                key=lambda item: item[:2],
+                ((score(candidate), candidate) for candidate in self.candidates(part)),
+                key=lambda item: item[0],
             )
-            best = centred[0]
-            for _, k, candidate in centred[:PLACED_ORIENTATIONS]:
-                for offset in placement_offsets(whole_points)[1:]:
+            best_score, best = centred[0]
+            for _, candidate in centred[:PLACED_ORIENTATIONS]:
+                for offset in offsets:
                     placed = replace(candidate, offset=tuple(float(v) for v in offset))
-                    found = (score(placed), k, placed)
-                    if found[0] < best[0]:
-                        best = found
-        return best[2]
+                    placed_score = score(placed)
+                    if placed_score < best_score:
+                        best_score, best = placed_score, placed
+        return best
 
     def _best(
         self, network: DiffusionNet, reference: torch.Tensor, shape: ShapeInput
