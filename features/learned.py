@@ -340,7 +340,7 @@ class LearnedExtractor:
                 self.network, probe, torch.from_numpy(feat_other).float(), other_points / np.sqrt(unit_area)
             )
             self.orientations[part.name] = chosen
-            if chosen.degrees != 0.0:
+            if chosen.degrees != 0.0 or any(chosen.offset):
                 logger.info("%s: input %s (orientation search for a part)", part.name, chosen.describe())
             shape = presented_input(shape, chosen)
         with torch.no_grad():
