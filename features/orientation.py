@@ -236,7 +236,7 @@ class OrientationSearch:
         orientation is scored with the part centred on itself; the ``PLACED_ORIENTATIONS`` best
         are then scored again with the part's centre at every trial placement on the whole
         (:func:`placement_offsets`), since a part centred on itself hides which region of the
-        whole it is (docs/partial.md, "Orientation and placement of a part").
+        whole it is (docs/partial.md, "Placement of a part").
 
         Parameters
         ----------
