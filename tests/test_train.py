@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from features.diffusion_net import ModelConfig, ShapeInput
+from features.diffusion_net import ModelConfig, ShapeInput, prepare_shape
 from features.learned import CheckpointError, load_network
 from train.config import DataConfig, OptimConfig, RunConfig, TrainConfig
 from train.data import (
@@ -300,6 +300,9 @@ def test_real_config_composes_and_runs(tmp_path):
         animals = compose(
             config_name="train", overrides=["train/experiment=tosca_unsup_partial", "data.root=/x"]
         )
+        placed = compose(
+            config_name="train", overrides=["train/experiment=faust_r_unsup_placed", "data.root=/x"]
+        )
     faust_config, unsup_config = to_train_config(faust), to_train_config(unsup)
     partial_config, animals_config = to_train_config(partial), to_train_config(animals)
     assert animals_config.model.input == "wks_xyz" and animals_config.model.in_channels == 131
@@ -308,6 +311,9 @@ def test_real_config_composes_and_runs(tmp_path):
     assert partial_config.data.partial_copies == 6 and partial_config.loss.w_partial == 10.0
     assert partial_config.run.n_steps == 6000 and partial_config.run.time_limit_min > 71  # one cosine
     assert partial_config.model == unsup_config.model and partial_config.optim == unsup_config.optim
+    placed_config = to_train_config(placed)
+    assert placed_config.data.partial_placed == 0.5 and partial_config.data.partial_placed == 0.0
+    assert placed_config.loss == partial_config.loss and placed_config.run == partial_config.run
     assert faust_config.model.input == "wks"
     assert unsup_config.model.input == "wks_xyz" and unsup_config.model.in_channels == 131
     assert unsup_config.loss.w_sup == 0.0
@@ -381,3 +387,35 @@ def test_partial_augmentation_adds_the_cut_consistency_term(tmp_path):
     assert len(rows) == 3 and all(0 < float(row["partial"]) < 20 for row in rows)
     with pytest.raises(ValueError, match="data.partial_copies"):
         to_train_config(without_copies)
+
+
+def test_a_placed_partial_copy_lies_where_it_was_cut_from_the_whole():
+    from spidermatch.data.datasets import SyntheticShapes
+    from train.data import partial_inputs
+    from train.loop import partial_copy_input
+
+    mesh = SyntheticShapes(n_shapes=1, n_verts=600, seed=1, n_refs=10).load("creature_001").mesh
+    model = ModelConfig(input="xyz", in_channels=3, n_eig=20)
+    config = TrainConfig(
+        model=model,
+        loss=LossConfig(n_fmap=20),
+        data=DataConfig(partial_copies=2, use_cache=False, partial_placed=1.0),
+    )
+    whole = prepare_shape(mesh, model, use_cache=False)
+    parts = partial_inputs(mesh, "creature_001", model, config.data)
+    assert len(parts) == 2
+    generator = torch.Generator().manual_seed(0)
+    for part in parts:
+        centred = part.input.features
+        assert not torch.allclose(centred, whole.features[part.to_whole], atol=1e-3)
+        config.data.partial_jitter = 0.0
+        placed = partial_copy_input(part, config, generator)
+        assert torch.allclose(placed, whole.features[part.to_whole], atol=1e-5)
+        config.data.partial_jitter = 0.05
+        shift = partial_copy_input(part, config, generator) - whole.features[part.to_whole]
+        assert torch.allclose(shift, shift[:1].expand_as(shift), atol=1e-5)  # one shift for the whole part
+        assert 0 < shift[0].abs().max() <= 0.05 + 1e-6
+    config.data.partial_placed = 0.0
+    assert torch.equal(partial_copy_input(parts[0], config, generator), parts[0].input.features)
+    with pytest.raises(ValueError, match="data.partial_placed"):
+        DataConfig(partial_placed=1.5)

@@ -73,6 +73,14 @@ class DataConfig:
         loss (``loss.w_partial``). 0: none.
     partial_keep : list of two floats
         Range of the area fraction a partial copy keeps.
+    partial_placed : float
+        Share of the steps at which a partial copy is shown where it lies on its whole (its
+        centre moved by its offset from the whole's centre, plus ``partial_jitter``) instead
+        of centred on itself. Inference tries such placements (``features.orientation``), so
+        this teaches the network what the placement search shows it. 0: always centred.
+    partial_jitter : float
+        Half-width of the uniform random shift added to a placed copy's offset, per axis, in
+        the whole's unit of length (sqrt of its area); about half the inference grid's step.
     """
 
     root: str | None = None
@@ -90,6 +98,8 @@ class DataConfig:
     up_axis: str = "y"
     partial_copies: int = 0
     partial_keep: Any = (0.3, 0.7)
+    partial_placed: float = 0.0
+    partial_jitter: float = 0.075
 
     def __post_init__(self) -> None:
         if self.orientation_turns < 0:
@@ -102,6 +112,10 @@ class DataConfig:
         if len(keep) != 2 or not 0.0 < keep[0] <= keep[1] < 1.0:
             raise ValueError(f"data.partial_keep must be [low, high] with 0 < low <= high < 1, got {keep}")
         self.partial_keep = [float(keep[0]), float(keep[1])]
+        if not 0.0 <= self.partial_placed <= 1.0:
+            raise ValueError(f"data.partial_placed must be a share in [0, 1], got {self.partial_placed}")
+        if self.partial_jitter < 0:
+            raise ValueError(f"data.partial_jitter must be >= 0, got {self.partial_jitter}")
         if self.val_pairs not in VAL_PAIR_MODES:
             raise ValueError(f"data.val_pairs must be one of {VAL_PAIR_MODES}, got {self.val_pairs!r}")
         if self.augment_rotation not in ROTATION_MODES:

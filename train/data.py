@@ -68,11 +68,15 @@ class PartialInput:
         Vertex of the training-resolution shape each vertex of the part is.
     kind : str
         How it was cut (:data:`spidermatch.geometry.partial.CUT_KINDS`).
+    offset : torch.Tensor, shape (3,)
+        Where the part's centre lies relative to the whole's, in the whole's unit of length:
+        added to the part's (self-centred) coordinates, it shows the part at its place.
     """
 
     input: ShapeInput
     to_whole: torch.Tensor
     kind: str
+    offset: torch.Tensor
 
 
 @dataclass(frozen=True, eq=False)
@@ -254,8 +258,20 @@ def partial_inputs(mesh: Mesh, name: str, model: ModelConfig, config: DataConfig
             logger.warning("partial copy %d of %s skipped: %s", k, name, error)
             continue
         shape = prepare_shape(part.mesh, model, use_cache=config.use_cache, scale_area=mesh.area)
-        parts.append(PartialInput(shape, torch.from_numpy(part.to_original), kind))
+        offset = torch.from_numpy(place_of_part(part.mesh.verts, mesh.verts, mesh.area)).to(
+            shape.features.dtype
+        )
+        parts.append(PartialInput(shape, torch.from_numpy(part.to_original), kind, offset))
     return tuple(parts)
+
+
+def place_of_part(part_verts: np.ndarray, whole_verts: np.ndarray, whole_area: float) -> np.ndarray:
+    """Offset (3,) of a part's vertex mean from its whole's, divided by sqrt(``whole_area``).
+
+    Network inputs centre coordinates on the vertex mean (:func:`features.diffusion_net.input_features`),
+    so this is what moves a part's input to where the part lies in its whole's input.
+    """
+    return (part_verts.mean(axis=0) - whole_verts.mean(axis=0)) / np.sqrt(whole_area)
 
 
 def prepare_val_shape(shape: Shape, model: ModelConfig, config: DataConfig) -> ValShape:

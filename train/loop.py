@@ -42,6 +42,7 @@ from spidermatch import shutdown
 from spidermatch.data.datasets import DatasetError
 from train.config import TrainConfig, incompatibilities
 from train.data import (
+    PartialInput,
     TrainShape,
     open_shapes,
     prepare_shapes,
@@ -296,12 +297,29 @@ def partial_term(state: TrainingState, shape: TrainShape, feat_whole: torch.Tens
     """
     choice = int(torch.randint(len(shape.partials), (1,), generator=state.generator))
     part = shape.partials[choice]
-    feat_part = state.network(part.input.features, part.input.ops)
+    feat_part = state.network(partial_copy_input(part, config, state.generator), part.input.ops)
     n_part = part.to_whole.shape[0]
     points = None
     if n_part > config.loss.partial_points:
         points = torch.randperm(n_part, generator=state.generator)[: config.loss.partial_points]
     return cut_consistency_loss(feat_part, feat_whole, part.to_whole, config.loss.temperature, points)
+
+
+def partial_copy_input(part: PartialInput, config: TrainConfig, generator: torch.Generator) -> torch.Tensor:
+    """Input features (V_p, C_in) of a partial copy: centred on itself, or at its place on the whole.
+
+    With probability ``data.partial_placed`` (and coordinates among the inputs), the copy's
+    coordinates are moved by its offset on the whole plus a uniform shift of at most
+    ``data.partial_jitter`` per axis, as the inference's placement search presents a part.
+    """
+    features = part.input.features
+    if config.model.input == "wks" or config.data.partial_placed <= 0:
+        return features
+    if float(torch.rand((), generator=generator)) >= config.data.partial_placed:
+        return features
+    jitter = (2 * torch.rand(3, generator=generator) - 1) * config.data.partial_jitter
+    shift = (part.offset + jitter).to(features.dtype)
+    return torch.cat([features[:, :-3], features[:, -3:] + shift], dim=1)
 
 
 def validate(
