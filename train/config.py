@@ -76,8 +76,9 @@ class DataConfig:
     partial_placed : float
         Share of the steps at which a partial copy is shown where it lies on its whole (its
         centre moved by its offset from the whole's centre, plus ``partial_jitter``) instead
-        of centred on itself. Inference tries such placements (``features.orientation``), so
-        this teaches the network what the placement search shows it. 0: always centred.
+        of centred on itself, as the inference's placement search (``features.orientation``)
+        shows a part. 0: always centred. At 0.5 the FAUST_r partial recipe did no better on
+        parts than at 0 (docs/partial.md, "Features that survive cuts").
     partial_jitter : float
         Half-width of the uniform random shift added to a placed copy's offset, per axis, in
         the whole's unit of length (sqrt of its area); about half the inference grid's step.
