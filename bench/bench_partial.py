@@ -296,6 +296,24 @@ def add_part_options(parser: argparse.ArgumentParser, checkpoint_help: str) -> N
         metavar="SEED",
         help="present every part in a random rotation (seeded by SEED and the part's name), moved",
     )
+    parser.add_argument(
+        "--placed-orientations",
+        type=int,
+        default=None,
+        metavar="N",
+        help="place the N best orientations of a part on its target (default: the library's "
+        "features.orientation.PLACED_ORIENTATIONS); 0 measures the orientation search alone",
+    )
+
+
+def apply_part_search_options(args: argparse.Namespace) -> None:
+    """Set the part search's number of placed orientations for this process, if asked."""
+    if args.placed_orientations is not None:
+        from features import orientation
+
+        if args.placed_orientations < 0:
+            raise SystemExit("--placed-orientations must be 0 or more")
+        orientation.PLACED_ORIENTATIONS = args.placed_orientations
 
 
 def part_manifest(parts: Path) -> list[dict]:
@@ -350,6 +368,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", default=None, help="FIRST:STOP, a slice of the runs")
     parser.add_argument("--out", required=True, type=Path)
     args = parser.parse_args(argv)
+    apply_part_search_options(args)
     logging.basicConfig(level=logging.WARNING)
     from features.learned import LearnedExtractor
 

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 from bench_partial import (
     add_part_options,
+    apply_part_search_options,
     part_against_whole,
     part_manifest,
     partial_to_full_runs,
@@ -99,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--own", action="store_true", help="also each part against the shape it was cut from")
     parser.add_argument("--out", required=True, type=Path)
     args = parser.parse_args(argv)
+    apply_part_search_options(args)
     from features.learned import LearnedExtractor
 
     folder = ShapeFolder(args.data)

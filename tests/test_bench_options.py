@@ -110,3 +110,21 @@ def test_partial_bench_slices_merge_into_one_table(tmp_path):
     assert merged["note"] == "side by side" and out.with_suffix(".csv").read_text().count("\n") == 4
     assert merged["summary"]["all"]["runs"] == 3 and merged["summary"]["all"]["optimal"] == 2
     assert merged["summary"]["all"]["median_dense_error"] == 0.04 and merged["summary"]["view"]["runs"] == 1
+
+
+def test_partial_benches_can_turn_the_part_placement_off(monkeypatch):
+    from bench_partial import add_part_options, apply_part_search_options
+
+    from features import orientation
+
+    monkeypatch.setattr(orientation, "PLACED_ORIENTATIONS", orientation.PLACED_ORIENTATIONS)
+    parser = argparse.ArgumentParser(prog="bench")
+    add_part_options(parser, "a network")
+    required = ["--data", "d", "--parts", "p", "--pairs", "q", "--checkpoint", "c"]
+    default = orientation.PLACED_ORIENTATIONS
+    apply_part_search_options(parser.parse_args(required))
+    assert orientation.PLACED_ORIENTATIONS == default > 0
+    apply_part_search_options(parser.parse_args([*required, "--placed-orientations", "0"]))
+    assert orientation.PLACED_ORIENTATIONS == 0
+    with pytest.raises(SystemExit, match="0 or more"):
+        apply_part_search_options(parser.parse_args([*required, "--placed-orientations", "-1"]))
