@@ -62,6 +62,11 @@ def rotated_coordinates(features: torch.Tensor, rotation: torch.Tensor) -> torch
     return torch.cat([features[:, :-3], features[:, -3:] @ rotation.T], dim=1)
 
 
+def moved_coordinates(features: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
+    """Network input (V, C) whose last 3 (coordinate) columns are moved by ``offset`` (3,)."""
+    return torch.cat([features[:, :-3], features[:, -3:] + offset.to(features.dtype)], dim=1)
+
+
 def rotated_input(shape: ShapeInput, rotation: torch.Tensor) -> ShapeInput:
     """``shape`` with its coordinate columns rotated by ``rotation`` (3, 3)."""
     return replace(shape, features=rotated_coordinates(shape.features, rotation))
@@ -72,9 +77,9 @@ def presented_input(shape: ShapeInput, orientation: Orientation) -> ShapeInput:
     turned = rotated_input(shape, orientation.rotation)
     if not any(orientation.offset):
         return turned
-    offset = torch.tensor(orientation.offset, dtype=turned.features.dtype)
     return replace(
-        turned, features=torch.cat([turned.features[:, :-3], turned.features[:, -3:] + offset], dim=1)
+        turned,
+        features=moved_coordinates(turned.features, torch.tensor(orientation.offset, dtype=torch.float64)),
     )
 
 

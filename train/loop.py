@@ -33,6 +33,7 @@ from tqdm.auto import tqdm
 from features.diffusion_net import DiffusionNet
 from features.learned import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, CheckpointError, read_checkpoint
 from features.orientation import (
+    moved_coordinates,
     reference_payload,
     rotated_coordinates,
     searches_orientation,
@@ -318,8 +319,7 @@ def partial_copy_input(part: PartialInput, config: TrainConfig, generator: torch
     if float(torch.rand((), generator=generator)) >= config.data.partial_placed:
         return features
     jitter = (2 * torch.rand(3, generator=generator) - 1) * config.data.partial_jitter
-    shift = (part.offset + jitter).to(features.dtype)
-    return torch.cat([features[:, :-3], features[:, -3:] + shift], dim=1)
+    return moved_coordinates(features, part.offset + jitter)
 
 
 def validate(
