@@ -27,6 +27,7 @@ from train.loop import (
     train_step,
 )
 from train.losses import LossConfig, pair_loss, supervised_loss
+from train.validation import PartValidator
 
 pytestmark = pytest.mark.usefixtures("isolated_torch")
 
@@ -385,6 +386,9 @@ def test_partial_augmentation_adds_the_cut_consistency_term(tmp_path):
     assert result.step == 3
     rows = list(csv.DictReader((tmp_path / "losses.csv").open()))
     assert len(rows) == 3 and all(0 < float(row["partial"]) < 20 for row in rows)
+    [validated] = list(csv.DictReader((tmp_path / "validation.csv").open()))
+    assert 0 < float(validated["val_partial"]) < 2  # a partial recipe is validated, and selected, on parts
+    assert result.best_val == pytest.approx(float(validated["val_partial"]), abs=1e-6)
     with pytest.raises(ValueError, match="data.partial_copies"):
         to_train_config(without_copies)
 
@@ -419,3 +423,54 @@ def test_a_placed_partial_copy_lies_where_it_was_cut_from_the_whole():
     assert torch.equal(partial_copy_input(parts[0], config, generator), parts[0].input.features)
     with pytest.raises(ValueError, match="data.partial_placed"):
         DataConfig(partial_placed=1.5)
+
+
+def _validation_shape(n_verts: int, model: ModelConfig):
+    from spidermatch.data.datasets import SyntheticShapes
+    from train.data import prepare_val_shape
+
+    dataset = SyntheticShapes(n_shapes=1, n_verts=n_verts, seed=1, n_refs=100)
+    return prepare_val_shape(dataset.load(dataset.names[0]), model, DataConfig(use_cache=False))
+
+
+def test_partial_validation_scores_each_part_on_the_reference_points_it_kept():
+    from train.data import Validator
+    from train.validation import validation_parts
+
+    model = ModelConfig(in_channels=16, out_channels=16, width=16, n_blocks=2, n_eig=30)
+    shape = _validation_shape(500, model)
+    validator = Validator([shape], None, pairs=[(0, 0)])  # parts against their own whole
+    parts = validation_parts(validator, [0], model, (0.3, 0.7), use_cache=False)
+    assert [part.name.split("#")[1] for part in parts] == ["plane", "holes", "view"]
+    features = np.random.default_rng(0).normal(size=(shape.mesh.n_verts, 32))
+    features /= np.linalg.norm(features, axis=1, keepdims=True)  # every vertex its own nearest feature
+    for part in parts:
+        assert part.targets == (0,)
+        kept = part.position >= 0
+        to_whole = np.empty(kept.sum(), dtype=np.int64)
+        to_whole[part.position[kept]] = np.flatnonzero(kept)
+        errors = PartValidator(validator, parts, False).part_errors(part, features[to_whole], features, 0)
+        assert errors.size == (part.position[shape.corr] >= 0).sum() and 0 < errors.size < 100
+        assert np.all(errors == 0)
+        shifted = PartValidator(validator, parts, False).part_errors(
+            part, features[np.roll(to_whole, 7)], features, 0
+        )
+        assert shifted.mean() > 0.05
+
+
+def test_a_validation_part_is_shown_turned_and_placed_as_its_whole():
+    from features.orientation import Orientation, rotated_input, turn_about_vertical
+    from train.data import Validator
+    from train.validation import validation_parts
+
+    model = ModelConfig(input="xyz", in_channels=3, n_eig=20)
+    shape = _validation_shape(500, model)
+    validator = Validator([shape], None, pairs=[(0, 0)])
+    parts = validation_parts(validator, [0], model, (0.3, 0.7), use_cache=False)
+    turn = Orientation(turn_about_vertical(0.7), 40.0)
+    whole = rotated_input(shape.input, turn.rotation).features
+    for part in parts:
+        kept = part.position >= 0
+        shown = PartValidator(validator, parts, True).part_input(part, turn).features
+        assert torch.allclose(shown[part.position[kept]], whole[kept], atol=1e-5)
+        assert not torch.allclose(part.input.features[part.position[kept]], whole[kept], atol=1e-3)

@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 from tqdm.auto import tqdm
 
 from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
-from features.orientation import OrientationSearch, oriented_outputs
+from features.orientation import Orientation, OrientationSearch, oriented_outputs
 from features.wks import normalise_rows
 from spidermatch.data.datasets import Shape, ShapeFolder, SyntheticShapes, open_dataset
 from spidermatch.geometry.geodesics import GeodesicDistances
@@ -371,14 +371,17 @@ class Validator:
 
     def features(self, network: DiffusionNet) -> list[np.ndarray]:
         """L2-normalised descriptors of every validation shape, each (V, C_out)."""
+        return self.oriented_features(network)[1]
+
+    def oriented_features(self, network: DiffusionNet) -> tuple[list[Orientation], list[np.ndarray]]:
+        """How every validation shape was presented, and its L2-normalised descriptors (V, C_out)."""
         was_training = network.training
         network.eval()
-        out = [
-            normalise_rows(feats.double().numpy())
-            for feats in network_outputs(network, self.shapes, self.orientation, self.probes)
-        ]
+        found = oriented_outputs(
+            network, [shape.input for shape in self.shapes], self.orientation, self.probes
+        )
         network.train(was_training)
-        return out
+        return [chosen for chosen, _ in found], [normalise_rows(feats.double().numpy()) for _, feats in found]
 
     def pair_errors(self, feats: list[np.ndarray], i: int, j: int) -> np.ndarray:
         """Errors of the nearest-neighbour map from shape i to shape j, one per reference point (K,)."""

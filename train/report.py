@@ -26,6 +26,7 @@ VALIDATION_COLUMNS = (
     "val_bij",
     "val_orth",
     "val_couple",
+    "val_partial",
     "wks_error",
     "loss",
 )
@@ -100,11 +101,15 @@ def plot_validation(ax, rows: list[dict[str, str]]) -> None:
     """Left panel: the labelled error (with WKS) and/or the label-free loss per validation."""
     steps = column(rows, "step")
     error, unsup, wks = column(rows, "val_error"), column(rows, "val_unsup"), column(rows, "wks_error")
+    partial = column(rows, "val_partial")
     labelled = bool(np.isfinite(error).any())
     main = error if labelled else unsup
     ax.plot(
         steps, main, marker="o", color="tab:blue", label="NN geodesic error" if labelled else "label-free"
     )
+    if np.isfinite(partial).any():  # a partial recipe: selected on its parts' error
+        ax.plot(steps, partial, marker="s", color="tab:orange", label="NN error, partial copies")
+        main = partial
     if np.isfinite(main).any():
         best = int(np.nanargmin(main))
         ax.plot([steps[best]], [main[best]], marker="*", markersize=14, color="tab:red")

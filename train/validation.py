@@ -7,28 +7,45 @@ Two figures, both on held-out pairs (see :func:`train.data.validation_pairs`):
   (:class:`train.data.Validator`);
 * ``val_unsup`` (needs no labels): the unsupervised training objective (bijectivity,
   orthogonality and coupling, without the supervised term) of the evaluation
-  network on the pairs at training resolution.
+  network on the pairs at training resolution;
+* ``val_partial`` (recipes with partial copies, ``data.partial_copies > 0``, and labels):
+  the same nearest-neighbour error for partial copies of the held-out shapes (a plane cut,
+  holes and a single view of each) against whole shapes they are paired with, each copy
+  shown at its place on its whole (:class:`PartValidator`).
 
-The checkpoint is selected on ``val_error`` when labels exist, else on ``val_unsup``.
+The checkpoint is selected on ``val_partial`` when it is computed (a partial recipe trains
+for parts, and its whole-shape error can be lowest early in a run while its parts still
+improve), else on ``val_error`` when labels exist, else on ``val_unsup``.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from features.diffusion_net import DiffusionNet
+from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
 from features.fmap import FmapLossConfig, fmap_terms
-from features.orientation import OrientationSearch, probe_input, searches_orientation
-from train.data import TrainShape, Validator, network_outputs
+from features.orientation import (
+    COORDINATE_INPUTS,
+    Orientation,
+    OrientationSearch,
+    presented_input,
+    probe_input,
+    searches_orientation,
+)
+from features.wks import normalise_rows
+from spidermatch.geometry.partial import CUT_KINDS, random_cut
+from train.data import TrainShape, Validator, ValShape, network_outputs, place_of_part
 
 logger = logging.getLogger(__name__)
 
 TERMS = ("bij", "orth", "couple")
+PART_TARGETS = 2  # whole shapes each validation part is matched to (evenly among its pair partners)
 
 
 def evenly_spaced(items: list, count: int) -> list:
@@ -83,9 +100,127 @@ class LossValidator:
         return {key: value / len(self.pairs) for key, value in sums.items()}
 
 
+@dataclass(frozen=True, eq=False)
+class ValPart:
+    """A partial copy of a validation shape at full resolution, in its whole's unit of length.
+
+    Attributes
+    ----------
+    name : str
+    whole : int
+        Index of the shape it was cut from (into :attr:`Validator.shapes`).
+    input : ShapeInput
+        Features (V_p, C_in) and operators of the part, centred on itself.
+    position : np.ndarray, shape (V_whole,), int64
+        Vertex of the part each vertex of the whole is (-1 where the cut removed it).
+    offset : np.ndarray, shape (3,)
+        Where the part's centre lies relative to the whole's, in the whole's unit
+        (:func:`train.data.place_of_part`).
+    targets : tuple of int
+        Whole shapes (indices) the part is matched to.
+    """
+
+    name: str
+    whole: int
+    input: ShapeInput
+    position: np.ndarray
+    offset: np.ndarray
+    targets: tuple[int, ...]
+
+
+def validation_parts(
+    validator: Validator, sources: list[int], model: ModelConfig, keep: tuple[float, float], use_cache: bool
+) -> list[ValPart]:
+    """A plane cut, holes and a single view of every shape in ``sources``, seeded by its name.
+
+    Each part keeps an area fraction in ``keep`` and is paired with at most
+    :data:`PART_TARGETS` of the shapes its whole is paired with in ``validator.pairs``. A cut
+    that keeps no part within ``keep`` is skipped with a warning, as in training.
+    """
+    parts = []
+    for i in sources:
+        shape: ValShape = validator.shapes[i]
+        partners = [j for a, j in validator.pairs if a == i]
+        targets = tuple(evenly_spaced(partners, PART_TARGETS))
+        rng = np.random.default_rng(zlib.crc32(f"validation part of {shape.name}".encode()))
+        for kind in CUT_KINDS:
+            try:
+                cut = random_cut(shape.mesh, kind, rng, keep, f"{shape.name}#{kind}")
+            except ValueError as error:
+                logger.warning("validation part %s of %s skipped: %s", kind, shape.name, error)
+                continue
+            position = np.full(shape.mesh.n_verts, -1, dtype=np.int64)
+            position[cut.to_original] = np.arange(cut.mesh.n_verts)
+            part_input = prepare_shape(cut.mesh, model, use_cache=use_cache, scale_area=shape.mesh.area)
+            offset = place_of_part(cut.mesh.verts, shape.mesh.verts, shape.mesh.area)
+            parts.append(ValPart(cut.mesh.name, i, part_input, position, offset, targets))
+    return parts
+
+
+class PartValidator:
+    """Mean geodesic error of the nearest-neighbour map from partial copies to whole shapes.
+
+    The partial mode presents a part in its target's unit, turned and placed on it by a
+    search (docs/partial.md); here each part is shown as that search means to show it: turned
+    as its whole was presented, its centre at its place on the whole. The error of a part
+    against a target is the mean over the validator's reference points the part kept, on
+    the validator's geodesic tables.
+
+    Parameters
+    ----------
+    validator : Validator
+        Supplies the whole shapes, their reference points and geodesic tables.
+    parts : list of ValPart
+    places_parts : bool
+        Whether the network reads coordinates (only then is a part turned and placed).
+    """
+
+    def __init__(self, validator: Validator, parts: list[ValPart], places_parts: bool) -> None:
+        if not parts:
+            raise ValueError("PartValidator needs at least one part")
+        self.validator, self.parts, self.places_parts = validator, parts, places_parts
+
+    def part_input(self, part: ValPart, orientation: Orientation) -> ShapeInput:
+        """The part's input turned as its whole was (``orientation``) and placed on it."""
+        if not self.places_parts:
+            return part.input
+        rotation = orientation.rotation.double()
+        offset = rotation.numpy() @ part.offset
+        return presented_input(part.input, Orientation(rotation, None, tuple(float(x) for x in offset)))
+
+    def part_errors(
+        self, part: ValPart, feat_part: np.ndarray, feat_target: np.ndarray, target: int
+    ) -> np.ndarray:
+        """Errors (K_kept,) of the part's nearest-feature map onto ``target``, at its kept reference points.
+
+        ``feat_part`` (V_p, C) and ``feat_target`` (V_target, C) are L2-normalised.
+        """
+        rows = self.validator.rows
+        kept_at = part.position[self.validator.shapes[part.whole].corr[rows]]
+        kept = kept_at >= 0
+        predicted = np.argmax(feat_part[kept_at[kept]] @ feat_target.T, axis=1)
+        table = self.validator.distance_tables()[target]
+        return table[np.flatnonzero(kept), predicted].astype(np.float64)
+
+    def __call__(
+        self, network: DiffusionNet, orientations: list[Orientation], feats: list[np.ndarray]
+    ) -> float:
+        """Mean over (part, target) of the mean error, given the whole shapes' orientations and features."""
+        was_training = network.training
+        network.eval()
+        errors = []
+        with torch.no_grad():
+            for part in self.parts:
+                shown = self.part_input(part, orientations[part.whole])
+                feat_part = normalise_rows(network(shown.features, shown.ops).double().numpy())
+                errors += [self.part_errors(part, feat_part, feats[j], j).mean() for j in part.targets]
+        network.train(was_training)
+        return float(np.mean(errors))
+
+
 @dataclass
 class Validation:
-    """Both validation figures of a run.
+    """The validation figures of a run.
 
     Attributes
     ----------
@@ -94,21 +229,31 @@ class Validation:
         None when some shape of the validation pairs has no ground truth.
     wks_error : float
         ``val_error`` of WKS descriptors on the same pairs (nan without labels).
+    partial : PartValidator, optional
+        For recipes with partial copies (and labels).
     """
 
     label_free: LossValidator
     labelled: Validator | None = None
     wks_error: float = math.nan
+    partial: PartValidator | None = None
 
     @property
     def criterion(self) -> str:
-        """The figure that selects ``best.pt``: ``"val_error"`` or ``"val_unsup"``."""
+        """The figure that selects ``best.pt``: ``"val_partial"``, ``"val_error"`` or ``"val_unsup"``."""
+        if self.partial is not None:
+            return "val_partial"
         return "val_error" if self.labelled is not None else "val_unsup"
 
     def __call__(self, network: DiffusionNet) -> dict[str, float]:
         """All figures of ``network`` (evaluated in eval mode), keyed by name."""
         figures = self.label_free(network)
-        figures["val_error"] = self.labelled(network) if self.labelled is not None else math.nan
+        figures["val_error"] = math.nan
+        if self.labelled is not None:
+            orientations, feats = self.labelled.oriented_features(network)
+            figures["val_error"] = self.labelled.error_of(feats)
+            if self.partial is not None:
+                figures["val_partial"] = self.partial(network, orientations, feats)
         figures["wks_error"] = self.wks_error
         return figures
 
@@ -193,4 +338,23 @@ def prepare_validation(
     if labelled is not None:
         logger.info("validation: %d labelled pairs; WKS scores %.4f on them", len(labelled.pairs), wks)
     logger.info("validation: %d label-free pairs at training resolution", len(label_free.pairs))
-    return Validation(label_free, labelled, wks)
+    partial = None
+    if labelled is not None and config.data.partial_copies > 0:
+        partial = part_validator(labelled, set(known), config)
+    return Validation(label_free, labelled, wks, partial)
+
+
+def part_validator(labelled: Validator, training_names: set[str], config) -> PartValidator:
+    """PartValidator on cuts of the held-out shapes among the labelled pairs' sources."""
+    shapes = labelled.shapes
+    sources = sorted({i for i, _ in labelled.pairs if shapes[i].name not in training_names})
+    parts = validation_parts(
+        labelled, sources, config.model, tuple(config.data.partial_keep), config.data.use_cache
+    )
+    logger.info(
+        "validation: %d partial copies of %d held-out shapes, each against %d whole shapes (val_partial)",
+        len(parts),
+        len(sources),
+        PART_TARGETS,
+    )
+    return PartValidator(labelled, parts, config.model.input in COORDINATE_INPUTS)
