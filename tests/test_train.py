@@ -388,6 +388,7 @@ def test_partial_augmentation_adds_the_cut_consistency_term(tmp_path):
     assert len(rows) == 3 and all(0 < float(row["partial"]) < 20 for row in rows)
     [validated] = list(csv.DictReader((tmp_path / "validation.csv").open()))
     assert 0 < float(validated["val_partial"]) < 2  # a partial recipe is validated, and selected, on parts
+    assert result.criterion == "val_partial"
     assert result.best_val == pytest.approx(float(validated["val_partial"]), abs=1e-6)
     with pytest.raises(ValueError, match="data.partial_copies"):
         to_train_config(without_copies)
@@ -474,3 +475,18 @@ def test_a_validation_part_is_shown_turned_and_placed_as_its_whole():
         shown = PartValidator(validator, parts, True).part_input(part, turn).features
         assert torch.allclose(shown[part.position[kept]], whole[kept], atol=1e-5)
         assert not torch.allclose(part.input.features[part.position[kept]], whole[kept], atol=1e-3)
+
+
+def test_a_resumed_run_compares_its_selection_figure_with_the_same_figure():
+    from train.loop import _rebase_best
+
+    state = new_state(tiny_config())
+    state.history = [{"step": 1, "val_error": 0.2}, {"step": 2, "val_error": 0.1}]
+    state.best_val = 0.1
+    _rebase_best(state, "val_error")
+    assert state.best_val == 0.1
+    _rebase_best(state, "val_partial")  # written before val_partial existed: nothing to beat yet
+    assert state.best_val == math.inf
+    state.history.append({"step": 3, "val_error": 0.15, "val_partial": 0.3})
+    _rebase_best(state, "val_partial")
+    assert state.best_val == 0.3

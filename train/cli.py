@@ -19,6 +19,12 @@ from train.loop import train
 
 logger = logging.getLogger(__name__)
 
+CRITERION_NAMES = {  # the figure that selects best.pt, as the final line names it
+    "val_error": "validation error",
+    "val_partial": "validation error on partial copies",
+    "val_unsup": "label-free validation loss",
+}
+
 ConfigStore.instance().store(name="train_schema", node=TrainConfig)
 
 
@@ -61,7 +67,7 @@ def train_main(cfg: DictConfig) -> float:
         )
         raise SystemExit(130) from None
     status = f"interrupted (exit {result.exit_code})" if result.interrupted else "finished"
-    figure = "validation error" if result.criterion == "val_error" else "label-free validation loss"
+    figure = CRITERION_NAMES.get(result.criterion, result.criterion)
     print(
         f"{status} at step {result.step}: last {figure} {result.last_val:.4f}, "
         f"best {result.best_val:.4f}; checkpoints in {out_dir}{worse_than_wks(result)}"

@@ -387,6 +387,8 @@ def run_training(
         load_checkpoint_into(config.resume, state, config)
         _carry_best(Path(config.resume), out_dir)
         logger.info("resumed from %s at step %d", config.resume, state.step)
+        if validation is not None:
+            _rebase_best(state, validation.criterion)
         _warn_if_cosine_restarts(state.scheduler, run.n_steps)
     started = time.monotonic() if started is None else started
     deadline = math.inf if run.time_limit_min is None else started + 60 * run.time_limit_min
@@ -470,6 +472,26 @@ def _carry_best(resumed: Path, out_dir: Path) -> None:
     if best.is_file() and best.resolve() != (out_dir / "best.pt").resolve():
         out_dir.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(best, out_dir / "best.pt")
+
+
+def _rebase_best(state: TrainingState, criterion: str) -> None:
+    """Make the resumed best figure the best ``criterion`` of the history.
+
+    A run written before its selection figure existed (``val_partial``) stored the best of
+    another figure; compared with that, the new figure would never (or always) improve.
+    """
+    values = [
+        float(entry[criterion]) for entry in state.history if math.isfinite(entry.get(criterion, math.nan))
+    ]
+    best = min(values, default=math.inf)
+    if best != state.best_val:
+        logger.info(
+            "resumed run: best %s so far %.4f (the checkpoint's best figure was %.4f)",
+            criterion,
+            best,
+            state.best_val,
+        )
+        state.best_val = best
 
 
 def prepare_data(config: TrainConfig) -> tuple[list[TrainShape], Validation]:
