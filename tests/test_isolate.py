@@ -47,8 +47,30 @@ def test_a_child_killed_by_a_signal_gives_an_error_result_with_the_figures_it_re
     result = solve_isolated(dying, MODEL, None, None, SolverOptions())
     assert result.status == "error" and result.x is None
     assert result.objective == 3.0 and result.bound == -math.inf and math.isnan(result.gap)
-    assert "SIGSEGV (exit 139)" in result.message
+    assert "SIGSEGV (exit 139)" in result.message and "the retry died too" in result.message
     assert (result.n_vars, result.n_rows) == (7, 3)
+
+
+def dying_with_heuristics(model, graph, curve, options):
+    """Aborts as HiGHS 1.16 did inside a heuristic, unless the heuristics are off; a path first."""
+    if options.extra.get("mip_heuristic_effort") != 0.0:
+        report_known(incumbent=4.0, bound=3.5, path=np.array([2, 5]))
+        os.abort()
+    x = np.zeros(model.n_vars)
+    x[[0, 1, 6]] = 1.0
+    return SolveResult("optimal", x, 4.5, 3.9, 0.0, 0.1, model.n_vars, model.n_rows, model.nnz, "Optimal")
+
+
+def test_a_child_that_dies_is_retried_with_the_heuristics_off_and_the_better_of_both_kept():
+    options = SolverOptions(time_limit=60.0, mip_rel_gap=0.2, extra={"presolve": "on"})
+    result = solve_isolated(dying_with_heuristics, MODEL, None, None, options)
+    assert "retried after the solver process died" in result.message
+    # the dead child's closed path (4.0) is cheaper than the retry's (4.5); the retry's bound larger
+    assert result.objective == 4.0 and result.bound == 3.9
+    np.testing.assert_array_equal(np.flatnonzero(result.x), [2, 5])
+    assert result.status == "optimal" and result.gap == pytest.approx(0.025)
+    no_time = SolverOptions(time_limit=isolate.RETRY_MIN_S / 2)
+    assert solve_isolated(dying_with_heuristics, MODEL, None, None, no_time).status == "error"
 
 
 def hanging_after_a_path(model, graph, curve, options):

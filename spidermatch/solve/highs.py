@@ -33,9 +33,15 @@ from spidermatch.solve.types import (
 logger = logging.getLogger(__name__)
 
 
-# HiGHS 1.16's root reduced-cost heuristic aborted the process (free(): invalid pointer) in
-# the presolve of its sub-MIP: docs/solver_failures.md, bench/repro/highs_submip_presolve_abort.py
-HIGHS_WORKAROUNDS = {"mip_heuristic_run_root_reduced_cost": False}
+# HiGHS 1.16 aborts the process (free(): invalid pointer) when it frees the presolve of a
+# heuristic's sub-MIP: seen from the root reduced-cost heuristic and from RENS, and RINS solves
+# sub-MIPs the same way, so all three are off (docs/solver_failures.md,
+# bench/repro/highs_submip_presolve_abort.py). They only look for incumbents.
+HIGHS_WORKAROUNDS = {
+    "mip_heuristic_run_root_reduced_cost": False,
+    "mip_heuristic_run_rens": False,
+    "mip_heuristic_run_rins": False,
+}
 KEEP_IMPROVING = 16  # improving solutions a session keeps (each a full-model vector, 8 bytes per column)
 
 

@@ -21,6 +21,11 @@ usually the child too). The parent forwards them; the child stops HiGHS and send
 knew, and the parent raises :class:`~spidermatch.shutdown.RunInterrupted` with it. A child
 that has not answered ``STOP_GRACE_S`` after that is killed.
 
+Retry: every HiGHS abort seen was inside a primal heuristic (docs/solver_failures.md). A
+child that dies is followed by one more in a fresh process with all of them off
+(:data:`RETRY_OPTIONS`), over what is left of the time limit; the cheaper of its solution and
+the dead child's last reported closed path is the result.
+
 Time limit: HiGHS does not check its time limit or interrupt flag in some phases (a MIP's
 root analytic-centre computation, presolve). A child still solving ``OVERRUN_KILL_S``
 past the time limit is killed, and the last closed path it reported (with its solution,
@@ -66,6 +71,8 @@ logger = logging.getLogger(__name__)
 POLL_S = 0.05  # how often the parent looks at the pipe, the child and the signals
 STOP_GRACE_S = 3.0  # after a forwarded signal, how long the child may take to answer
 OVERRUN_KILL_S = 4.5  # how far past its time limit the solver process may run before it is killed
+RETRY_OPTIONS = {"mip_heuristic_effort": 0.0, "mip_heuristic_run_feasibility_jump": False}  # after a death
+RETRY_MIN_S = 10.0  # the least time left for which a solve is retried after its process died
 # (the budget is kept within 5 s: HiGHS is interrupted at +OVERRUN_GRACE_S where it checks, the
 # process killed at +4.5 s where it does not, and the kill takes well under a second)
 
@@ -218,12 +225,61 @@ def solve_isolated(
         result, reports = _watch(child, receiver, model, start, options, repair_at)
         if result is None:  # stopped at repair_at for the repair
             result = _repaired_in_reserve(reports, model, graph, curve, start, options)
-        return result
     finally:
         receiver.close()
         if child.is_alive():
             child.kill()
         child.join()
+    if reports.died:
+        return _retried_after_death(solve, model, graph, curve, options, start, result, reports)
+    return result
+
+
+def _retried_after_death(solve, model, graph, curve, options, start: float, failed: SolveResult, reports):
+    """After the solver process died: the solve again in a fresh one with HiGHS's heuristics off.
+
+    Every HiGHS abort seen (docs/solver_failures.md) was inside a primal heuristic, which only
+    looks for incumbents; :data:`RETRY_OPTIONS` turns them all off. The retry gets what is
+    left of the time limit (none, if less than :data:`RETRY_MIN_S`). The result is the cheaper
+    of its solution and the last closed path the dead process reported, with the larger of
+    the two certified bounds (both hold for the full model). A retry that dies too, or no time
+    to retry, leaves ``failed`` (status ``"error"``).
+    """
+    left = start + options.time_limit - time.perf_counter()
+    if _is_retry(options) or left < RETRY_MIN_S:
+        return failed
+    logger.warning(
+        "retrying the solve in a fresh solver process with HiGHS's primal heuristics off (%s left)",
+        f"{left:.0f} s" if math.isfinite(left) else "no time limit",
+    )
+    retry_options = replace(options, time_limit=left, extra={**options.extra, **RETRY_OPTIONS})
+    retried = solve_isolated(solve, model, graph, curve, retry_options)
+    if retried.status == "error":
+        return replace(failed, message=f"{failed.message}; the retry died too ({retried.message})")
+    return _merged_with_dead(retried, reports, model, options, time.perf_counter() - start)
+
+
+def _is_retry(options: SolverOptions) -> bool:
+    return all(options.extra.get(name) == value for name, value in RETRY_OPTIONS.items())
+
+
+def _merged_with_dead(
+    retried: SolveResult, reports, model, options: SolverOptions, wall: float
+) -> SolveResult:
+    """``retried``, or the dead process's cheaper closed path, with the larger bound of the two."""
+    bound = max(retried.bound, reports.known.get("bound") or -math.inf)
+    x, objective = retried.x, retried.objective
+    if reports.path is not None and (x is None or reports.path[0] < objective):
+        objective, x = reports.path[0], np.zeros(model.n_vars)
+        x[reports.path[1]] = 1.0
+    words = f"{retried.message} (retried after the solver process died)"
+    if x is None:
+        return replace(retried, bound=bound, wall_time=wall, message=words)
+    gap = relative_gap(objective, bound)
+    status = "optimal" if gap <= options.mip_rel_gap else "feasible"
+    return replace(
+        retried, status=status, x=x, objective=objective, bound=bound, gap=gap, wall_time=wall, message=words
+    )
 
 
 def _child_main(receiver, sender, solve, model, graph, curve, options) -> None:
@@ -307,6 +363,7 @@ class ChildReports:
         self.path: tuple[float, np.ndarray] | None = None
         self.detached: tuple[float, np.ndarray] | None = None
         self.detached_is_newer = False
+        self.died = False  # the child ended without a result (a signal or an exit of its own)
 
     def take(self, message: tuple) -> bool:
         """Take in a ``"known"`` or ``"detached"`` message; False for any other kind."""
@@ -388,6 +445,7 @@ def _watch(child, receiver, model, start: float, options: SolverOptions, repair_
                     return _overran(reports, model, now - start, options), reports
                 return None, reports
     child.join()
+    reports.died = True
     return _failure(child.exitcode, reports.known, model, time.perf_counter() - start), reports
 
 
