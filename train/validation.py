@@ -213,9 +213,12 @@ class PartValidator:
             for part in self.parts:
                 shown = self.part_input(part, orientations[part.whole])
                 feat_part = normalise_rows(network(shown.features, shown.ops).double().numpy())
-                errors += [self.part_errors(part, feat_part, feats[j], j).mean() for j in part.targets]
+                for j in part.targets:
+                    kept = self.part_errors(part, feat_part, feats[j], j)
+                    if kept.size:  # a part may keep none of a sparse set of reference points
+                        errors.append(kept.mean())
         network.train(was_training)
-        return float(np.mean(errors))
+        return float(np.mean(errors)) if errors else math.nan
 
 
 @dataclass
@@ -344,13 +347,16 @@ def prepare_validation(
     return Validation(label_free, labelled, wks, partial)
 
 
-def part_validator(labelled: Validator, training_names: set[str], config) -> PartValidator:
-    """PartValidator on cuts of the held-out shapes among the labelled pairs' sources."""
+def part_validator(labelled: Validator, training_names: set[str], config) -> PartValidator | None:
+    """PartValidator on cuts of the held-out shapes among the labelled pairs' sources (None: no cut)."""
     shapes = labelled.shapes
     sources = sorted({i for i, _ in labelled.pairs if shapes[i].name not in training_names})
     parts = validation_parts(
         labelled, sources, config.model, tuple(config.data.partial_keep), config.data.use_cache
     )
+    if not parts:
+        logger.warning("validation: no partial copy of a held-out shape: best.pt is chosen on whole shapes")
+        return None
     logger.info(
         "validation: %d partial copies of %d held-out shapes, each against %d whole shapes (val_partial)",
         len(parts),

@@ -13,8 +13,9 @@ With highspy 1.16.0, ``centaur_mip3.mps.xz`` (the third restricted MIP of ``colg
 TOSCA centaur0 -> centaur1 at 1000 faces, 106 043 binary columns, 31 134 rows) and its start
 solution, the process dies after about 65 s with ``free(): invalid pointer`` (SIGABRT, exit
 134) in ``HPresolve::~HPresolve`` under ``HighsPrimalHeuristics::rootReducedCost`` ->
-``solveSubMip``; with ``mip_heuristic_run_root_reduced_cost=false`` it does not. See
-docs/solver_failures.md.
+``solveSubMip``; with ``mip_heuristic_run_root_reduced_cost=false`` it does not. The same
+abort came later from ``HighsPrimalHeuristics::RENS`` on another model (a TOSCA part, 1000
+faces), so spidermatch turns RENS and RINS off too. See docs/solver_failures.md.
 """
 
 import lzma
