@@ -267,7 +267,8 @@ def _merged_with_dead(
     retried: SolveResult, reports, model, options: SolverOptions, wall: float
 ) -> SolveResult:
     """``retried``, or the dead process's cheaper closed path, with the larger bound of the two."""
-    bound = max(retried.bound, reports.known.get("bound") or -math.inf)
+    reported = reports.known.get("bound")
+    bound = max(retried.bound, -math.inf if reported is None else reported)  # a bound of 0 counts
     x, objective = retried.x, retried.objective
     if reports.path is not None and (x is None or reports.path[0] < objective):
         objective, x = reports.path[0], np.zeros(model.n_vars)
