@@ -23,7 +23,7 @@ from features.wks import normalise_rows
 from spidermatch.data.datasets import Shape, ShapeFolder, SyntheticShapes, open_dataset
 from spidermatch.geometry.geodesics import GeodesicDistances
 from spidermatch.geometry.mesh import Mesh
-from spidermatch.geometry.partial import CUT_KINDS, random_cut
+from spidermatch.geometry.partial import CUT_KINDS, PartialShape, random_cut
 from spidermatch.geometry.remesh import decimate
 from train.config import DataConfig
 
@@ -253,16 +253,45 @@ def partial_inputs(mesh: Mesh, name: str, model: ModelConfig, config: DataConfig
     for k in range(config.partial_copies):
         kind = CUT_KINDS[k % len(CUT_KINDS)]
         try:
-            part = random_cut(mesh, kind, rng, tuple(config.partial_keep), f"{name}#{kind}{k}")
+            part, shape, offset = cut_input(
+                mesh, kind, rng, tuple(config.partial_keep), f"{name}#{kind}{k}", model, config.use_cache
+            )
         except ValueError as error:
             logger.warning("partial copy %d of %s skipped: %s", k, name, error)
             continue
-        shape = prepare_shape(part.mesh, model, use_cache=config.use_cache, scale_area=mesh.area)
-        offset = torch.from_numpy(place_of_part(part.mesh.verts, mesh.verts, mesh.area)).to(
-            shape.features.dtype
-        )
+        offset = torch.from_numpy(offset).to(shape.features.dtype)
         parts.append(PartialInput(shape, torch.from_numpy(part.to_original), kind, offset))
     return tuple(parts)
+
+
+def cut_input(
+    mesh: Mesh,
+    kind: str,
+    rng: np.random.Generator,
+    keep: tuple[float, float],
+    name: str,
+    model: ModelConfig,
+    use_cache: bool,
+) -> tuple[PartialShape, ShapeInput, np.ndarray]:
+    """A random cut of ``mesh``, its network input in the whole's unit, and its place on the whole.
+
+    Returns
+    -------
+    part : PartialShape
+    shape : ShapeInput
+        Features (V_p, C_in) and operators of the part, centred on itself, measured in
+        sqrt(``mesh.area``).
+    offset : np.ndarray, shape (3,)
+        :func:`place_of_part` of the part.
+
+    Raises
+    ------
+    ValueError
+        No cut of ``kind`` keeps an area fraction in ``keep`` (:func:`random_cut`).
+    """
+    part = random_cut(mesh, kind, rng, keep, name)
+    shape = prepare_shape(part.mesh, model, use_cache=use_cache, scale_area=mesh.area)
+    return part, shape, place_of_part(part.mesh.verts, mesh.verts, mesh.area)
 
 
 def place_of_part(part_verts: np.ndarray, whole_verts: np.ndarray, whole_area: float) -> np.ndarray:

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
+from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput
 from features.fmap import FmapLossConfig, fmap_terms
 from features.orientation import (
     COORDINATE_INPUTS,
@@ -39,8 +39,8 @@ from features.orientation import (
     searches_orientation,
 )
 from features.wks import normalise_rows
-from spidermatch.geometry.partial import CUT_KINDS, random_cut
-from train.data import TrainShape, Validator, ValShape, network_outputs, place_of_part
+from spidermatch.geometry.partial import CUT_KINDS
+from train.data import TrainShape, Validator, ValShape, cut_input, network_outputs
 
 logger = logging.getLogger(__name__)
 
@@ -145,14 +145,13 @@ def validation_parts(
         rng = np.random.default_rng(zlib.crc32(f"validation part of {shape.name}".encode()))
         for kind in CUT_KINDS:
             try:
-                cut = random_cut(shape.mesh, kind, rng, keep, f"{shape.name}#{kind}")
+                cut, part_input, offset = cut_input(
+                    shape.mesh, kind, rng, keep, f"{shape.name}#{kind}", model, use_cache
+                )
             except ValueError as error:
                 logger.warning("validation part %s of %s skipped: %s", kind, shape.name, error)
                 continue
-            position = np.full(shape.mesh.n_verts, -1, dtype=np.int64)
-            position[cut.to_original] = np.arange(cut.mesh.n_verts)
-            part_input = prepare_shape(cut.mesh, model, use_cache=use_cache, scale_area=shape.mesh.area)
-            offset = place_of_part(cut.mesh.verts, shape.mesh.verts, shape.mesh.area)
+            position = cut.positions(shape.mesh.n_verts)
             parts.append(ValPart(cut.mesh.name, i, part_input, position, offset, targets))
     return parts
 

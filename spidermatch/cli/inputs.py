@@ -231,8 +231,7 @@ def overlap_inputs(inputs: MatchInputs, feat_x: np.ndarray, feat_y: np.ndarray, 
     }
     source_corr, target_corr = inputs.source_corr, inputs.target_corr
     if source_corr is not None:
-        position = np.full(inputs.source.n_verts, -1, dtype=np.int64)
-        position[piece.to_original] = np.arange(piece.mesh.n_verts)
+        position = piece.positions(inputs.source.n_verts)
         inside = position[source_corr] >= 0
         source_corr, target_corr = position[source_corr[inside]], target_corr[inside]
     cut = dataclasses.replace(

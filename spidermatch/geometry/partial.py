@@ -56,6 +56,12 @@ class PartialShape:
     kept_area: float
     kind: str
 
+    def positions(self, n_original: int) -> np.ndarray:
+        """Part vertex of each of the original's ``n_original`` vertices, -1 where cut away (int64)."""
+        position = np.full(n_original, -1, dtype=np.int64)
+        position[self.to_original] = np.arange(self.mesh.n_verts)
+        return position
+
 
 def kept_part(mesh: Mesh, keep_faces: np.ndarray, name: str, kind: str) -> PartialShape:
     """The largest clean piece of ``mesh`` made of the faces ``keep_faces`` selects.
