@@ -535,6 +535,15 @@ def test_a_run_after_one_stopped_on_request_is_not_stopped_by_the_old_request():
     )
 
 
+def test_the_relative_gap_of_vanishing_costs_is_rounding_not_a_gap():
+    from spidermatch.solve.types import relative_gap
+
+    assert relative_gap(-7.047e-19, -8.674e-19) == 0.0  # a mesh matched to its exact copy
+    assert relative_gap(2.0, 1.0) == pytest.approx(0.5)
+    assert relative_gap(100.0, 100.0 - 1e-6) == pytest.approx(1e-8)  # small, but a real gap
+    assert math.isnan(relative_gap(float("inf"), 1.0))
+
+
 def test_a_mip_stopped_on_request_with_detached_cycles_keeps_its_bound_and_cuts_without_a_re_solve(
     monkeypatch,
 ):
