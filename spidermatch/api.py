@@ -28,6 +28,7 @@ from spidermatch.feature_transfer import pair_features as capped_pair_features
 from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
 from spidermatch.geometry.overlap import estimated_overlap, overlap_part
 from spidermatch.geometry.partial import PairKind, PartialShape, announce_pair, overlap_kind, pair_kind
+from spidermatch.geometry.repair import Repair, largest_clean_piece
 from spidermatch.model_size import check_meshes_fit
 from spidermatch.validate import check_settings, feature_cap_problem, raise_problems
 
@@ -67,10 +68,11 @@ class Matching:
     dense_map : np.ndarray, shape (V_src,), int64, or None
         Target vertex for every vertex of the full-resolution source (``src_to_tgt``); None when
         the dense map is turned off or there is no matching. ``p2p`` is the same array. With
-        ``partial="both"``, -1 for the source vertices outside ``source_overlap``.
+        ``partial="both"`` or a repaired source, -1 for the source vertices outside ``source_overlap``.
     dense : spidermatch.dense.densify.DenseMap or None
         The dense map in point-on-surface form (target face and barycentric coordinates); with
-        ``partial="both"``, of the overlap's vertices (``details.source``), in their order.
+        ``partial="both"`` or a repaired source, of the matched piece's vertices
+        (``details.source``), in their order.
     status : str
         "optimal" (certified within ``mip_rel_gap``), "feasible" (stopped early with a
         matching that is not proven optimal), "infeasible", "no_solution" or "error".
@@ -87,8 +89,9 @@ class Matching:
         Everything else: the decimated meshes, the SpiderCurve, the solver's full report
         (with ``partial="both"``, of the matched overlap piece of the source).
     source_overlap : np.ndarray, shape (V_src,), bool, or None
-        ``partial="both"``: the source vertices estimated to have a partner on the target
-        (the piece that was matched); None in the other modes, where every source vertex has one.
+        The source vertices that were matched, where not all of them were: with
+        ``partial="both"`` those estimated to have a partner on the target, with
+        ``repair=True`` those of the largest clean piece (both, with both). None otherwise.
 
     """
 
@@ -164,6 +167,24 @@ def as_mesh(shape, role: str) -> Mesh:
         f"{role}: expected a mesh file path, a trimesh.Trimesh, a (verts, faces) pair or a "
         f"spidermatch Mesh, got {type(shape).__name__}"
     )
+
+
+def _unchecked_mesh(shape) -> Mesh | None:
+    """``shape`` (a path, trimesh object or (V, F) pair) read without validation; None if unreadable."""
+    try:
+        if isinstance(shape, (str, os.PathLike)):
+            from spidermatch.geometry.io import load_mesh
+
+            return load_mesh(shape, validate=False)
+        if isinstance(shape, (tuple, list)) and len(shape) == 2:
+            verts, faces, name = shape[0], shape[1], "source mesh (V, F) arrays"
+        elif hasattr(shape, "vertices") and hasattr(shape, "faces"):
+            verts, faces, name = shape.vertices, shape.faces, f"source mesh ({type(shape).__name__})"
+        else:
+            return None
+        return Mesh(np.asarray(verts, dtype=np.float64), np.asarray(faces, dtype=np.int64), name)
+    except (MeshError, ValueError, TypeError):
+        return None
 
 
 def _from_arrays(verts, faces, name: str) -> Mesh:
@@ -252,6 +273,7 @@ def match(
     strict: bool = True,
     features_max_vertices: int | None = MAX_FEATURE_VERTICES,
     partial: str = "auto",
+    repair: bool = False,
 ) -> Matching:
     """Match ``source`` to ``target`` with SpiderMatch and return a certified :class:`Matching`.
 
@@ -289,6 +311,13 @@ def match(
         meshes are two parts of one surface in one unit: the source region that overlaps the
         target is estimated (:mod:`spidermatch.geometry.overlap`) and only it is matched, as a
         part of the target (``source_overlap``; ``dense_map`` is -1 elsewhere).
+    repair : bool
+        A source that fails the loader's checks only by bow-tie vertices, several pieces,
+        unused vertices, degenerate faces or non-manifold edges (a raw scan) is matched as
+        its largest clean piece (:func:`spidermatch.geometry.repair.largest_clean_piece`;
+        what was dropped is logged); ``matches`` and ``dense_map`` still name the source's
+        own vertices, ``source_overlap`` marks the piece; precomputed source features are
+        given for the source as given. A source given as a ``Mesh`` is taken as it is.
 
     Returns
     -------
@@ -304,7 +333,10 @@ def match(
     from spidermatch.pipeline import match as run_pipeline
 
     raise_problems([feature_cap_problem(features_max_vertices, "features_max_vertices")])
-    source_mesh, target_mesh = as_mesh(source, "source"), as_mesh(target, "target")
+    source_mesh, repaired = source_mesh_of(source, repair)
+    target_mesh = as_mesh(target, "target")
+    if repaired is not None and isinstance(features, (tuple, list)) and len(features) == 2:
+        features = (_rows_of_piece(features[0], repaired), features[1])  # given for the source as given
     dense_planned = settings is None or getattr(settings, "dense", None) is not None
     check_meshes_fit((source_mesh.n_verts, target_mesh.n_verts), dense_planned)
     kind = recognised_pair(source_mesh, target_mesh, partial)
@@ -334,7 +366,45 @@ def match(
     if strict:
         result.raise_for_status()
     matching = _matching(result, name, run_settings.resolution, {"features": feature_time, **result.timings})
-    return matching if piece is None else on_whole_source(matching, piece, source_mesh.n_verts)
+    if piece is not None:
+        matching = on_whole_source(matching, piece, source_mesh.n_verts)
+    if repaired is not None:
+        matching = on_whole_source(matching, repaired.piece, repaired.n_original)
+    return matching
+
+
+def _rows_of_piece(source_features, repaired: Repair) -> np.ndarray:
+    """Precomputed source features (V_given, D) cut to the repaired piece's vertices (V_piece, D)."""
+    rows = np.asarray(source_features)
+    if rows.ndim != 2 or rows.shape[0] != repaired.n_original:
+        raise ValueError(
+            f"source features: expected one row per vertex of the source as given ({repaired.n_original}), "
+            f"got shape {rows.shape}"
+        )
+    return rows[repaired.piece.to_original]
+
+
+def source_mesh_of(source, repair: bool) -> tuple[Mesh, Repair | None]:
+    """The source as a validated Mesh, or with ``repair`` an invalid one's largest clean piece and its cut.
+
+    Without ``repair``, a source that the repair would mend is refused with what it would match.
+    """
+    try:
+        return as_mesh(source, "source"), None
+    except MeshError as error:
+        unchecked = None if isinstance(source, Mesh) else _unchecked_mesh(source)
+        if unchecked is None:
+            raise
+        try:
+            repaired = largest_clean_piece(unchecked)
+        except MeshError:
+            if repair:
+                raise
+            raise error from None
+        if not repair:
+            raise MeshError(f"{error}; repair=true would match {repaired.summary}") from None
+        logger.warning("%s (as given: %s)", repaired.note, error)
+        return repaired.piece.mesh, repaired
 
 
 def source_overlap_piece(source: Mesh, target: Mesh, feat_x: np.ndarray, feat_y: np.ndarray) -> PartialShape:
@@ -366,10 +436,14 @@ def on_whole_source(matching: Matching, piece: PartialShape, n_source: int) -> M
     """``matching`` of the overlap ``piece`` told in the whole source's vertex indices.
 
     ``matches`` name the source's own vertices; ``dense_map`` has one entry per source vertex,
-    -1 outside the overlap; ``source_overlap`` marks the piece.
+    -1 outside the overlap; ``source_overlap`` marks the piece (or, when ``matching`` already
+    has one, the part of the piece it marks).
     """
     inside = np.zeros(n_source, dtype=bool)
-    inside[piece.to_original] = True
+    if matching.source_overlap is None:
+        inside[piece.to_original] = True
+    else:  # a piece of a piece (the overlap of a repaired source)
+        inside[piece.to_original[matching.source_overlap]] = True
     matches = matching.matches
     if matches is not None:
         matches = np.column_stack([piece.to_original[matches[:, 0]], matches[:, 1]])

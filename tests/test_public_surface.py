@@ -39,6 +39,7 @@ MATCH_PARAMETERS = [
     "strict",
     "features_max_vertices",
     "partial",
+    "repair",  # keyword-only, added last
 ]
 
 MATCHING_FIELDS = [

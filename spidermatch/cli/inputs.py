@@ -14,13 +14,14 @@ from pathlib import Path
 
 import numpy as np
 
-from spidermatch.api import BETTER_FEATURES_HINT
+from spidermatch.api import BETTER_FEATURES_HINT, source_mesh_of
 from spidermatch.cli.settings import dense_settings
 from spidermatch.data.datasets import DatasetError, SyntheticShapes
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, pair_features
 from spidermatch.geometry.io import load_mesh, read_vts
 from spidermatch.geometry.mesh import Mesh, MeshError
 from spidermatch.geometry.partial import PairKind, announce_pair, original_faces, overlap_kind, pair_kind
+from spidermatch.geometry.repair import Repair
 from spidermatch.model_size import check_meshes_fit
 from spidermatch.validate import (
     OptionError,
@@ -54,15 +55,18 @@ def load_inputs(cfg) -> MatchInputs:
     if (cfg.source is None) != (cfg.target is None):
         raise DatasetError("give both source=PATH and target=PATH (or neither, for the built-in demo)")
     if cfg.source is not None:
-        source, target = load_mesh(cfg.source), load_mesh(cfg.target)
-        source_corr = read_vts(cfg.source_corr, source.n_verts) if cfg.source_corr else None
+        source, repaired = source_mesh_of(cfg.source, bool(cfg.get("repair", False)))
+        target = load_mesh(cfg.target)
+        n_source = source.n_verts if repaired is None else repaired.n_original
+        source_corr = read_vts(cfg.source_corr, n_source) if cfg.source_corr else None
         target_corr = read_vts(cfg.target_corr, target.n_verts) if cfg.target_corr else None
         if (source_corr is None) != (target_corr is None):
             raise DatasetError("give both source_corr= and target_corr= to evaluate against ground truth")
         check_ground_truth(source_corr, target_corr, cfg.source_corr, cfg.target_corr)
-        return MatchInputs(
+        inputs = MatchInputs(
             source, target, source_corr, target_corr, int(cfg.resolution), f"{cfg.source} -> {cfg.target}"
         )
+        return inputs if repaired is None else repaired_inputs(inputs, repaired)
     data = cfg.data
     shapes = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.source_seed)
     other = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.target_seed)
@@ -70,6 +74,36 @@ def load_inputs(cfg) -> MatchInputs:
     return MatchInputs(
         x.mesh, y.mesh, x.corr, y.corr, int(cfg.resolution), f"built-in synthetic pair {x.name} -> {y.name}"
     )
+
+
+def repaired_inputs(inputs: MatchInputs, repaired: Repair) -> MatchInputs:
+    """``inputs`` whose source is the largest clean piece of the user's (``repair=true``).
+
+    The ground truth keeps the reference points inside the piece, renumbered to it;
+    ``piece_of`` says where the piece's vertices and faces lie in the user's source, and the
+    piece's notes say what was dropped (the report's warnings).
+    """
+    piece = repaired.piece
+    source_corr, target_corr = _corr_inside(
+        piece, repaired.n_original, inputs.source_corr, inputs.target_corr
+    )
+    source = dataclasses.replace(piece.mesh, notes=(repaired.note, *piece.mesh.notes))
+    return dataclasses.replace(
+        inputs,
+        source=source,
+        source_corr=source_corr,
+        target_corr=target_corr,
+        piece_of=(piece.to_original, repaired.face_ids),
+    )
+
+
+def _corr_inside(piece, n_source: int, source_corr, target_corr) -> tuple:
+    """Reference points (K',) each inside ``piece``, the source's renumbered to the piece; None stays None."""
+    if source_corr is None:
+        return source_corr, target_corr
+    position = piece.positions(n_source)
+    inside = position[source_corr] >= 0
+    return position[source_corr[inside]], target_corr[inside]
 
 
 def check_inputs(cfg, inputs: MatchInputs, report: dict) -> MatchInputs:
@@ -229,17 +263,18 @@ def overlap_inputs(inputs: MatchInputs, feat_x: np.ndarray, feat_y: np.ndarray, 
         "source_overlap_vertices": int(piece.mesh.n_verts),
         "source_overlap_area": round(float(piece.kept_area), 4),
     }
-    source_corr, target_corr = inputs.source_corr, inputs.target_corr
-    if source_corr is not None:
-        position = piece.positions(inputs.source.n_verts)
-        inside = position[source_corr] >= 0
-        source_corr, target_corr = position[source_corr[inside]], target_corr[inside]
+    source_corr, target_corr = _corr_inside(
+        piece, inputs.source.n_verts, inputs.source_corr, inputs.target_corr
+    )
+    vertex_ids, face_ids = piece.to_original, original_faces(piece, inputs.source)
+    if inputs.piece_of is not None:  # the overlap of a repaired source: in the user's indices
+        vertex_ids, face_ids = inputs.piece_of[0][vertex_ids], inputs.piece_of[1][face_ids]
     cut = dataclasses.replace(
         inputs,
         source=piece.mesh,
         source_corr=source_corr,
         target_corr=target_corr,
-        piece_of=(piece.to_original, original_faces(piece, inputs.source)),
+        piece_of=(vertex_ids, face_ids),
     )
     return cut, feat_x[piece.to_original]
 

@@ -147,7 +147,7 @@ def write_matching(
     pairs = result.full_pairs
     if cfg.output.matches_csv:
         written = pairs.copy()
-        if inputs.piece_of is not None:  # partial=both: the file names the user's source vertices
+        if inputs.piece_of is not None:  # partial=both or repair=true: name the user's source vertices
             written[:, 0] = inputs.piece_of[0][written[:, 0]]
         write_matches(output_dir / "matches.csv", written)
         logger.info("wrote %s (%d matches)", output_dir / "matches.csv", len(pairs))
