@@ -128,3 +128,27 @@ def test_partial_benches_can_turn_the_part_placement_off(monkeypatch):
     assert orientation.PLACED_ORIENTATIONS == 0
     with pytest.raises(SystemExit, match="0 or more"):
         apply_part_search_options(parser.parse_args([*required, "--placed-orientations", "-1"]))
+
+
+def test_a_scanned_part_is_a_clean_cut_of_the_dense_scan_with_its_originals_found():
+    import numpy as np
+    from bench_partial import scanned_part
+
+    from spidermatch.data.synthetic import make_creature
+    from spidermatch.geometry.mesh import make_mesh
+    from spidermatch.geometry.partial import plane_cut
+
+    whole = make_creature(n_verts=400, seed=2).mesh
+    part = plane_cut(whole, np.array([0.0, 1.0, 0.2]), 0.5, "part")
+    position = part.positions(whole.n_verts)
+    scanned, scanned_position = scanned_part(whole, position, np.random.default_rng(0), "part")
+    make_mesh(scanned.verts, scanned.faces, "scan")  # one clean manifold piece
+    assert scanned.name == "part" and scanned.n_verts > 10 * part.mesh.n_verts  # two Loop subdivisions
+    found = scanned_position >= 0
+    assert np.all(position[found] >= 0)  # only the part's originals are in the scan's cut
+    assert found.sum() >= 0.8 * part.mesh.n_verts  # its rim may lose a few
+    # an original stays near where it was (Loop smoothing and the scan's noise move it a little;
+    # a wrong index would put it many edges away)
+    moved = np.linalg.norm(scanned.verts[scanned_position[found]] - whole.verts[found], axis=1)
+    edge = np.linalg.norm(whole.verts[whole.faces[:, 0]] - whole.verts[whole.faces[:, 1]], axis=1).mean()
+    assert np.median(moved) < 0.5 * edge
