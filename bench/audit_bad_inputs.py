@@ -102,6 +102,7 @@ def make_cases(data: Path, work: Path) -> list[Case]:
     tet_f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     write_off(work / "tet_a.off", tet_v, tet_f)
     write_off(work / "tet_b.off", tet_v * [1, 1.2, 0.9], tet_f)
+    write_off(work / "raw_scan.off", *raw_scan(vx, fx))
     base = [f"source={x}", f"target={y}", "resolution=150"]
     reuse = work / "reused"
 
@@ -233,7 +234,36 @@ def make_cases(data: Path, work: Path) -> list[Case]:
             "source coordinates x 1e30",
             match(f"source={work / 'big.off'}", f"target={y}", "resolution=150"),
         ),
+        Case(
+            "raw_scan_source",
+            "source with a bow-tie triangle, a debris island, a stray vertex, a degenerate face",
+            match(f"source={work / 'raw_scan.off'}", f"target={y}", "resolution=150"),
+        ),
+        Case(
+            "raw_scan_repaired",
+            "the same with repair=true",
+            match(f"source={work / 'raw_scan.off'}", f"target={y}", "resolution=150", "repair=true"),
+        ),
+        Case(
+            "raw_scan_target",
+            "the raw scan as the target (only a source is repaired)",
+            match(f"source={y}", f"target={work / 'raw_scan.off'}", "resolution=150", "repair=true"),
+        ),
     ]
+
+
+def raw_scan(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh as a raw scan may come: a lone triangle touching vertex 0 (a bow-tie), a two-triangle
+    island of debris beside it, a stray vertex and a degenerate face.
+
+    Returns vertices (V + 7, 3) and faces (F + 4, 3), the mesh's own first.
+    """
+    n, size = len(verts), float(np.ptp(verts, axis=0).max())
+    far = verts.max(axis=0) + size * np.array([[0.3, 0, 0], [0.35, 0, 0], [0.3, 0.05, 0], [0.35, 0.05, 0.02]])
+    lone = verts[0] + 0.02 * size * np.array([[1.0, 0, 0], [1.0, 1.0, 0]])
+    extra = np.vstack([lone, far, verts.max(axis=0) + size])
+    more = [[0, n, n + 1], [n + 2, n + 3, n + 4], [n + 3, n + 5, n + 4], [1, 1, 2]]
+    return np.vstack([verts, extra]), np.vstack([faces, more])
 
 
 def first_problem(log: str) -> str:

@@ -33,7 +33,8 @@ def raw_scan(whole: Mesh, fin: bool = False) -> tuple[Mesh, np.ndarray]:
     normal_out /= np.linalg.norm(normal_out)
     side = np.cross(normal_out, [0.0, 0.0, 1.0]) + 1e-3
     side /= np.linalg.norm(side)
-    lone = [whole.verts[0] + 0.05 * size * normal_out, whole.verts[0] + 0.05 * size * (normal_out + side)]
+    # larger than the body's own faces at vertex 0: the body's fan must stay all the same
+    lone = [whole.verts[0] + 0.3 * size * normal_out, whole.verts[0] + 0.3 * size * (normal_out + side)]
     corners = np.array([[0.5, 0, 0], [0.6, 0, 0], [0.5, 0.1, 0], [0.6, 0.1, 0.05]])
     island = whole.verts.max(axis=0) + size * corners
     stray = whole.verts.max(axis=0) + size

@@ -6,8 +6,10 @@ of faces touch (a bow-tie), small islands of debris beside the body, stray point
 face, a sliver of zero area, a fin of three faces on one edge. Matching refuses such a mesh
 and names the first problem. With ``repair=true`` it matches the mesh's largest clean piece
 instead: faces of zero area or a repeated vertex and faces on edges of more than two faces are
-dropped, at each bow-tie vertex only the largest fan of faces (by area) keeps it, and of what
-remains the edge-connected piece of largest area is kept. What was dropped is said in the warnings, and
+dropped, of what remains the piece of largest area whose faces are joined through shared edges
+is kept (a bow-tie vertex does not join pieces: debris touching the body at a vertex is dropped,
+not the body's faces there), and where two fans of that piece still meet at a vertex only the
+larger fan (by area) keeps it. What was dropped is said in the warnings, and
 every output still names the vertices of the file as given (the rest get no image).
 
 What cannot be repaired this way is still refused: numbers that are not coordinates, faces
@@ -20,6 +22,8 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
 from spidermatch.geometry.mesh import (
     Mesh,
@@ -84,6 +88,26 @@ def faces_on_crowded_edges(faces: np.ndarray) -> np.ndarray:
     return (counts[inverse.reshape(-1)] > 2).reshape(-1, 3).any(axis=1)
 
 
+def largest_edge_connected(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces (F,) bool of the largest piece (by area) whose faces are joined through shared edges.
+
+    A lone triangle or an island touching the body at one vertex is a piece of its own here
+    (a bow-tie vertex does not join pieces), so that it is dropped, not the body's faces around
+    that vertex. ``faces`` (F, 3) must have at most two faces on every edge.
+    """
+    if len(faces) == 0:
+        return np.zeros(0, dtype=bool)
+    edges = np.sort(face_edges(faces).reshape(-1, 2), axis=1)
+    face_of = np.repeat(np.arange(len(faces)), 3)
+    order = np.lexsort((edges[:, 1], edges[:, 0]))
+    shared = np.all(edges[order[1:]] == edges[order[:-1]], axis=1)
+    first, second = face_of[order[:-1][shared]], face_of[order[1:][shared]]
+    graph = sp.coo_matrix((np.ones(first.size), (first, second)), shape=(len(faces), len(faces)))
+    labels = connected_components(graph, directed=False)[1]
+    areas = np.bincount(labels, weights=triangle_areas(verts, faces))
+    return labels == np.argmax(areas)
+
+
 def smaller_fans_dropped(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Faces (F,) bool to keep so that no bow-tie vertex is left: at each, only its largest fan by area.
 
@@ -140,6 +164,7 @@ def largest_clean_piece(mesh: Mesh) -> Repair:
     keep = ~(degenerate | crowded)
     if not keep.any():
         raise MeshError(f"{name}: no face is left after dropping degenerate and non-manifold ones")
+    keep[keep] = largest_edge_connected(verts, faces[keep])
     keep[keep] = smaller_fans_dropped(verts, faces[keep])
     try:
         piece = kept_part(Mesh(verts, faces, name), keep, name, "repaired")
@@ -166,7 +191,7 @@ def _summary(mesh: Mesh, piece: PartialShape, face_ids, degenerate: int, crowded
         for count, what in (
             (degenerate, "degenerate"),
             (crowded, "on non-manifold edges"),
-            (rest, "in smaller fans of bow-tie vertices or in smaller pieces"),
+            (rest, "in smaller pieces or smaller fans of bow-tie vertices"),
         )
         if count
     ]
