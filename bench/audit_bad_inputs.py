@@ -246,7 +246,7 @@ def make_cases(data: Path, work: Path) -> list[Case]:
         ),
         Case(
             "raw_scan_target",
-            "the raw scan as the target (only a source is repaired)",
+            "the raw scan as the target, repair=true",
             match(f"source={y}", f"target={work / 'raw_scan.off'}", "resolution=150", "repair=true"),
         ),
     ]

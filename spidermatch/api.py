@@ -169,7 +169,7 @@ def as_mesh(shape, role: str) -> Mesh:
     )
 
 
-def _unchecked_mesh(shape) -> Mesh | None:
+def _unchecked_mesh(shape, role: str) -> Mesh | None:
     """``shape`` (a path, trimesh object or (V, F) pair) read without validation; None if unreadable."""
     try:
         if isinstance(shape, (str, os.PathLike)):
@@ -177,9 +177,9 @@ def _unchecked_mesh(shape) -> Mesh | None:
 
             return load_mesh(shape, validate=False)
         if isinstance(shape, (tuple, list)) and len(shape) == 2:
-            verts, faces, name = shape[0], shape[1], "source mesh (V, F) arrays"
+            verts, faces, name = shape[0], shape[1], f"{role} mesh (V, F) arrays"
         elif hasattr(shape, "vertices") and hasattr(shape, "faces"):
-            verts, faces, name = shape.vertices, shape.faces, f"source mesh ({type(shape).__name__})"
+            verts, faces, name = shape.vertices, shape.faces, f"{role} mesh ({type(shape).__name__})"
         else:
             return None
         return Mesh(np.asarray(verts, dtype=np.float64), np.asarray(faces, dtype=np.int64), name)
@@ -312,12 +312,14 @@ def match(
         target is estimated (:mod:`spidermatch.geometry.overlap`) and only it is matched, as a
         part of the target (``source_overlap``; ``dense_map`` is -1 elsewhere).
     repair : bool
-        A source that fails the loader's checks only by bow-tie vertices, several pieces,
+        A mesh that fails the loader's checks only by bow-tie vertices, several pieces,
         unused vertices, degenerate faces or non-manifold edges (a raw scan) is matched as
         its largest clean piece (:func:`spidermatch.geometry.repair.largest_clean_piece`;
-        what was dropped is logged); ``matches`` and ``dense_map`` still name the source's
-        own vertices, ``source_overlap`` marks the piece; precomputed source features are
-        given for the source as given. A source given as a ``Mesh`` is taken as it is.
+        what was dropped is logged). ``matches`` and ``dense_map`` still name each mesh's
+        own vertices: a source's left-out vertices get -1 and lie outside
+        ``source_overlap``, a target's are nobody's image; ``dense`` and ``details`` are in
+        the pieces' indices. Precomputed features are given for the meshes as given. A mesh
+        given as a ``Mesh`` is taken as it is.
 
     Returns
     -------
@@ -333,10 +335,10 @@ def match(
     from spidermatch.pipeline import match as run_pipeline
 
     raise_problems([feature_cap_problem(features_max_vertices, "features_max_vertices")])
-    source_mesh, repaired = source_mesh_of(source, repair)
-    target_mesh = as_mesh(target, "target")
-    if repaired is not None and isinstance(features, (tuple, list)) and len(features) == 2:
-        features = (_rows_of_piece(features[0], repaired), features[1])  # given for the source as given
+    source_mesh, repaired = mesh_of(source, "source", repair)
+    target_mesh, target_repaired = mesh_of(target, "target", repair)
+    if isinstance(features, (tuple, list)) and len(features) == 2:  # given for the meshes as given
+        features = (_rows_of_piece(features[0], repaired), _rows_of_piece(features[1], target_repaired))
     dense_planned = settings is None or getattr(settings, "dense", None) is not None
     check_meshes_fit((source_mesh.n_verts, target_mesh.n_verts), dense_planned)
     kind = recognised_pair(source_mesh, target_mesh, partial)
@@ -370,29 +372,46 @@ def match(
         matching = on_whole_source(matching, piece, source_mesh.n_verts)
     if repaired is not None:
         matching = on_whole_source(matching, repaired.piece, repaired.n_original)
-    return matching
+    return matching if target_repaired is None else on_whole_target(matching, target_repaired.piece)
 
 
-def _rows_of_piece(source_features, repaired: Repair) -> np.ndarray:
-    """Precomputed source features (V_given, D) cut to the repaired piece's vertices (V_piece, D)."""
-    rows = np.asarray(source_features)
+def _rows_of_piece(features, repaired: Repair | None):
+    """Precomputed features (V_given, D) of a mesh cut to its repaired piece's vertices (V_piece, D)."""
+    if repaired is None:
+        return features
+    rows = np.asarray(features)
     if rows.ndim != 2 or rows.shape[0] != repaired.n_original:
         raise ValueError(
-            f"source features: expected one row per vertex of the source as given ({repaired.n_original}), "
-            f"got shape {rows.shape}"
+            f"features of {repaired.piece.mesh.name}: expected one row per vertex of the mesh as given "
+            f"({repaired.n_original}), got shape {rows.shape}"
         )
     return rows[repaired.piece.to_original]
 
 
-def source_mesh_of(source, repair: bool) -> tuple[Mesh, Repair | None]:
-    """The source as a validated Mesh, or with ``repair`` an invalid one's largest clean piece and its cut.
+def on_whole_target(matching: Matching, piece: PartialShape) -> Matching:
+    """``matching`` onto a repaired target's ``piece``, its target vertices told in the target's own indices.
 
-    Without ``repair``, a source that the repair would mend is refused with what it would match.
+    ``matches[:, 1]`` and ``dense_map`` name the target's own vertices; ``dense`` and ``details``
+    stay in the piece's.
+    """
+    matches, dense_map = matching.matches, matching.dense_map
+    if matches is not None:
+        matches = np.column_stack([matches[:, 0], piece.to_original[matches[:, 1]]])
+    if dense_map is not None:
+        dense_map = np.where(dense_map >= 0, piece.to_original[np.maximum(dense_map, 0)], -1)
+    return dataclasses.replace(matching, matches=matches, dense_map=dense_map)
+
+
+def mesh_of(shape, role: str, repair: bool) -> tuple[Mesh, Repair | None]:
+    """``shape`` as a validated Mesh, or with ``repair`` an invalid one's largest clean piece and its cut.
+
+    Without ``repair``, a mesh that the repair would mend is refused with what it would match.
+    ``role`` ("source" or "target") names an in-memory mesh in messages.
     """
     try:
-        return as_mesh(source, "source"), None
+        return as_mesh(shape, role), None
     except MeshError as error:
-        unchecked = None if isinstance(source, Mesh) else _unchecked_mesh(source)
+        unchecked = None if isinstance(shape, Mesh) else _unchecked_mesh(shape, role)
         if unchecked is None:
             raise
         try:

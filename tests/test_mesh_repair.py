@@ -165,3 +165,56 @@ def test_an_overlap_of_a_repaired_source_is_told_in_the_source_own_indices():
     assert np.array_equal(matching.matches, [[2, 7], [5, 8]])
     assert np.array_equal(matching.dense_map, [-1, -1, 7, -1, -1, 8])
     assert np.array_equal(np.flatnonzero(matching.source_overlap), [2, 5])
+
+
+def test_a_raw_target_is_repaired_too_and_its_own_indices_come_back(creature):
+    raw, n = raw_scan(creature)
+    body = WKSExtractor()(creature)
+    features = (body, np.vstack([body, np.zeros((raw.n_verts - n, body.shape[1]))]))
+    matching = spidermatch.match(
+        creature, (raw.verts, raw.faces), features=features, resolution=200, time_limit=300, repair=True
+    )
+    assert matching.status == "optimal" and matching.source_overlap is None
+    assert matching.dense_map.shape == (n,) and matching.dense_map.max() < n  # never a left-out vertex
+    assert matching.matches[:, 1].max() < n
+    dense_error = np.linalg.norm(creature.verts[matching.dense_map] - creature.verts, axis=1)
+    assert np.mean(dense_error) < 0.5 * mean_edge_length(creature)
+
+
+def test_the_command_line_writes_a_repaired_target_in_its_own_indices(tmp_path, creature):
+    raw, n = raw_scan(creature)
+    save_mesh(creature, tmp_path / "source.off")
+    save_mesh(raw, tmp_path / "raw.off")
+    truth = np.arange(0, n, 7)
+    np.savetxt(tmp_path / "source.vts", np.r_[truth, 0] + 1, fmt="%d")
+    np.savetxt(tmp_path / "raw.vts", np.r_[truth, raw.n_verts - 1] + 1, fmt="%d")  # the last: left out
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        cfg = compose(
+            config_name="match",
+            overrides=[
+                f"source={tmp_path / 'source.off'}",
+                f"target={tmp_path / 'raw.off'}",
+                f"source_corr={tmp_path / 'source.vts'}",
+                f"target_corr={tmp_path / 'raw.vts'}",
+                "resolution=120",
+                "repair=true",
+                "dense.inverse=true",
+                "output.png=false",
+                "output.viewer=false",
+            ],
+        )
+    out = tmp_path / "run"
+    assert run_match(cfg, out) == 0
+    result = json.loads((out / "result.json").read_text())
+    assert any("raw.off: repair=true matches its largest clean piece" in text for text in result["warnings"])
+    assert np.load(out / "dense_geodesic_errors.npy").shape == truth.shape
+    matches = np.loadtxt(out / "matches.csv", delimiter=",", skiprows=1, dtype=np.int64)
+    assert matches[:, 1].max() < n
+    with np.load(out / "dense_map.npz") as dense:
+        assert dense["vertex"].shape == (n,) and dense["vertex"].max() < n
+        assert np.all(np.isin(raw.faces[dense["face"]], np.arange(n)))  # faces of the file, on the body
+        assert dense["inverse_vertex"].shape == (raw.n_verts,)
+        assert np.all(dense["inverse_vertex"][n:] == -1) and np.all(dense["inverse_vertex"][:n] >= 0)
+        assert np.all(np.isnan(dense["inverse_gap"][n:]))
+    rows = np.loadtxt(out / "dense_inverse_matches.csv", delimiter=",", skiprows=1, dtype=np.int64)
+    assert rows.shape == (raw.n_verts, 2) and np.all(rows[n:, 1] == -1)

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from spidermatch.api import BETTER_FEATURES_HINT, source_mesh_of
+from spidermatch.api import BETTER_FEATURES_HINT, mesh_of
 from spidermatch.cli.settings import dense_settings
 from spidermatch.data.datasets import DatasetError, SyntheticShapes
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, pair_features
-from spidermatch.geometry.io import load_mesh, read_vts
+from spidermatch.geometry.io import read_vts
 from spidermatch.geometry.mesh import Mesh, MeshError
 from spidermatch.geometry.partial import PairKind, announce_pair, original_faces, overlap_kind, pair_kind
 from spidermatch.geometry.repair import Repair
@@ -48,6 +48,7 @@ class MatchInputs:
     partial: bool = False
     overlap: bool = False
     piece_of: tuple | None = None  # (vertex ids (V,), face ids (F,)) of ``source`` in the user's source
+    target_of: tuple | None = None  # (vertex ids, face ids, vertex count) of a repaired target in the user's
 
 
 def load_inputs(cfg) -> MatchInputs:
@@ -55,17 +56,21 @@ def load_inputs(cfg) -> MatchInputs:
     if (cfg.source is None) != (cfg.target is None):
         raise DatasetError("give both source=PATH and target=PATH (or neither, for the built-in demo)")
     if cfg.source is not None:
-        source, repaired = source_mesh_of(cfg.source, bool(cfg.get("repair", False)))
-        target = load_mesh(cfg.target)
+        repair = bool(cfg.get("repair", False))
+        source, repaired = mesh_of(cfg.source, "source", repair)
+        target, target_repaired = mesh_of(cfg.target, "target", repair)
         n_source = source.n_verts if repaired is None else repaired.n_original
+        n_target = target.n_verts if target_repaired is None else target_repaired.n_original
         source_corr = read_vts(cfg.source_corr, n_source) if cfg.source_corr else None
-        target_corr = read_vts(cfg.target_corr, target.n_verts) if cfg.target_corr else None
+        target_corr = read_vts(cfg.target_corr, n_target) if cfg.target_corr else None
         if (source_corr is None) != (target_corr is None):
             raise DatasetError("give both source_corr= and target_corr= to evaluate against ground truth")
         check_ground_truth(source_corr, target_corr, cfg.source_corr, cfg.target_corr)
         inputs = MatchInputs(
             source, target, source_corr, target_corr, int(cfg.resolution), f"{cfg.source} -> {cfg.target}"
         )
+        if target_repaired is not None:
+            inputs = repaired_target_inputs(inputs, target_repaired)
         return inputs if repaired is None else repaired_inputs(inputs, repaired)
     data = cfg.data
     shapes = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.source_seed)
@@ -97,13 +102,37 @@ def repaired_inputs(inputs: MatchInputs, repaired: Repair) -> MatchInputs:
     )
 
 
-def _corr_inside(piece, n_source: int, source_corr, target_corr) -> tuple:
-    """Reference points (K',) each inside ``piece``, the source's renumbered to the piece; None stays None."""
-    if source_corr is None:
-        return source_corr, target_corr
-    position = piece.positions(n_source)
-    inside = position[source_corr] >= 0
-    return position[source_corr[inside]], target_corr[inside]
+def repaired_target_inputs(inputs: MatchInputs, repaired: Repair) -> MatchInputs:
+    """``inputs`` whose target is the largest clean piece of the user's (``repair=true``).
+
+    The ground truth keeps the reference points whose target vertex is inside the piece
+    (renumbered to it); ``target_of`` says where the piece's vertices and faces lie in the
+    user's target, for the files.
+    """
+    piece = repaired.piece
+    target_corr, source_corr = _corr_inside(
+        piece, repaired.n_original, inputs.target_corr, inputs.source_corr
+    )
+    target = dataclasses.replace(piece.mesh, notes=(repaired.note, *piece.mesh.notes))
+    return dataclasses.replace(
+        inputs,
+        target=target,
+        source_corr=source_corr,
+        target_corr=target_corr,
+        target_of=(piece.to_original, repaired.face_ids, repaired.n_original),
+    )
+
+
+def _corr_inside(piece, n_given: int, own_corr, other_corr) -> tuple:
+    """Reference points (K',) inside ``piece`` of a mesh of ``n_given`` vertices; None stays None.
+
+    The mesh's own are renumbered to the piece, the other mesh's keep the same rows.
+    """
+    if own_corr is None:
+        return own_corr, other_corr
+    position = piece.positions(n_given)
+    inside = position[own_corr] >= 0
+    return position[own_corr[inside]], other_corr[inside]
 
 
 def check_inputs(cfg, inputs: MatchInputs, report: dict) -> MatchInputs:

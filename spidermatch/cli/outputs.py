@@ -149,6 +149,8 @@ def write_matching(
         written = pairs.copy()
         if inputs.piece_of is not None:  # partial=both or repair=true: name the user's source vertices
             written[:, 0] = inputs.piece_of[0][written[:, 0]]
+        if inputs.target_of is not None:  # repair=true: name the user's target vertices
+            written[:, 1] = inputs.target_of[0][written[:, 1]]
         write_matches(output_dir / "matches.csv", written)
         logger.info("wrote %s (%d matches)", output_dir / "matches.csv", len(pairs))
     if inputs.source_corr is None:
@@ -173,7 +175,7 @@ def write_dense(
     from spidermatch.dense.densify import certified_agreement
     from spidermatch.report.dense_report import dense_figures, write_dense_outputs
 
-    for path in write_dense_outputs(output_dir, result.dense, inputs.piece_of):
+    for path in write_dense_outputs(output_dir, result.dense, inputs.piece_of, inputs.target_of):
         logger.info("wrote %s", path)
     certified = certified_agreement(result.dense, inputs.target, result.source, result.target, result.low_map)
     figures, errors = dense_figures(

@@ -44,7 +44,9 @@ from spidermatch.shutdown import atomic_path
 logger = logging.getLogger(__name__)
 
 
-def write_dense_outputs(output_dir: Path, dense: DenseMap, piece: tuple | None = None) -> list[Path]:
+def write_dense_outputs(
+    output_dir: Path, dense: DenseMap, piece: tuple | None = None, target_piece: tuple | None = None
+) -> list[Path]:
     """Write ``dense_matches.csv``, ``dense_map.npz`` and, with an inverse map, ``dense_inverse_matches.csv``.
 
     ``dense_matches.csv`` has a ``source_vertex,target_vertex`` row per source vertex.
@@ -54,12 +56,19 @@ def write_dense_outputs(output_dir: Path, dense: DenseMap, piece: tuple | None =
     output_dir : Path
     dense : DenseMap
     piece : (np.ndarray (V_piece,), np.ndarray (F_piece,)), optional
-        When ``dense`` maps a piece of the user's source (``partial=both``): the source's
-        vertex and face index of each of the piece's. The files then name the source's own
-        vertices and faces: one CSV row per vertex of the piece, ``source_vertex`` (V_piece,)
-        in the archive, and the inverse map onto the source's faces.
+        When ``dense`` maps a piece of the user's source (``partial=both``, ``repair=true``):
+        the source's vertex and face index of each of the piece's. The files then name the
+        source's own vertices and faces: one CSV row per vertex of the piece, ``source_vertex``
+        (V_piece,) in the archive, and the inverse map onto the source's faces.
+    target_piece : (np.ndarray (V_T,), np.ndarray (F_T,), int), optional
+        When ``dense`` maps onto a repaired piece of the user's target: the target's vertex and
+        face index of each of the piece's, and the target's vertex count V_Y. The files then
+        name the target's own vertices and faces; the arrays per target vertex
+        (``target_covered``, ``inverse_*``) get V_Y entries, False or -1 (NaN for
+        ``inverse_bary`` and ``inverse_gap``) at the vertices the repair left out.
     """
     csv_path, npz_path = output_dir / "dense_matches.csv", output_dir / "dense_map.npz"
+    dense = dense if target_piece is None else on_user_target(dense, *target_piece)
     vertex_ids, face_ids = piece if piece is not None else (None, None)
     _write_vertex_pairs(csv_path, dense.vertex, "source_vertex,target_vertex", sources=vertex_ids)
     extra = {} if dense.covered is None else {"target_covered": dense.covered}
@@ -68,10 +77,10 @@ def write_dense_outputs(output_dir: Path, dense: DenseMap, piece: tuple | None =
     written = [csv_path, npz_path]
     if dense.inverse is not None:
         inverse = dense.inverse
-        inverse_vertex = inverse.vertex if vertex_ids is None else vertex_ids[inverse.vertex]
+        inverse_vertex = inverse.vertex if vertex_ids is None else _ids_or_missing(vertex_ids, inverse.vertex)
         extra.update(
             inverse_vertex=inverse_vertex,
-            inverse_face=inverse.face if face_ids is None else face_ids[inverse.face],
+            inverse_face=inverse.face if face_ids is None else _ids_or_missing(face_ids, inverse.face),
             inverse_bary=inverse.bary,
             inverse_gap=inverse.gap,
         )
@@ -82,6 +91,38 @@ def write_dense_outputs(output_dir: Path, dense: DenseMap, piece: tuple | None =
             tmp, vertex=dense.vertex, face=dense.face, bary=dense.bary, method=np.array(dense.method), **extra
         )
     return written
+
+
+def on_user_target(dense: DenseMap, vertex_ids: np.ndarray, face_ids: np.ndarray, n_target: int) -> DenseMap:
+    """``dense`` (onto a piece of the user's target) told in the target's own vertices and faces.
+
+    Per-target-vertex arrays grow from the piece's V_T to ``n_target`` entries: not covered,
+    -1 and NaN at the vertices the piece leaves out.
+    """
+    covered = None
+    if dense.covered is not None:
+        covered = np.zeros(n_target, dtype=bool)
+        covered[vertex_ids] = dense.covered
+    inverse = None
+    if dense.inverse is not None:
+        inv = dense.inverse
+        vertex, face = np.full(n_target, -1, dtype=np.int64), np.full(n_target, -1, dtype=np.int64)
+        bary, gap = np.full((n_target, 3), np.nan), np.full(n_target, np.nan)
+        vertex[vertex_ids], face[vertex_ids], bary[vertex_ids], gap[vertex_ids] = (
+            inv.vertex,
+            inv.face,
+            inv.bary,
+            inv.gap,
+        )
+        inverse = InverseMap(vertex, face, bary, gap)
+    return DenseMap(
+        vertex_ids[dense.vertex], face_ids[dense.face], dense.bary, dense.method, covered, inverse
+    )
+
+
+def _ids_or_missing(ids: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """``ids[indices]``, keeping -1 (missing) as -1."""
+    return np.where(indices >= 0, ids[np.maximum(indices, 0)], -1)
 
 
 def _write_vertex_pairs(
