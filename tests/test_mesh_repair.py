@@ -104,32 +104,46 @@ def test_the_api_refuses_a_raw_scan_with_what_repair_would_do_and_matches_it_wit
     assert np.mean(dense_error) < 0.5 * mean_edge_length(creature)
 
 
-def test_the_command_line_repairs_a_raw_source_and_writes_its_own_indices(tmp_path, creature):
+def _match_files(tmp_path, pair: dict, *overrides: str) -> tuple[int, dict, object]:
+    """``spidermatch-match`` on ``pair`` (option -> file in ``tmp_path``): exit code, result.json, folder."""
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        cfg = compose(
+            config_name="match",
+            overrides=[
+                *(f"{key}={tmp_path / name}" for key, name in pair.items()),
+                "resolution=120",
+                "output.png=false",
+                "output.viewer=false",
+                *overrides,
+            ],
+        )
+    out = tmp_path / ("run_" + "_".join(o.split("=")[0] for o in overrides))
+    return run_match(cfg, out), json.loads((out / "result.json").read_text()), out
+
+
+def _raw_and_body_files(tmp_path, creature, raw_role: str) -> tuple[Mesh, int, np.ndarray, dict]:
+    """The raw scan and the body saved, with ground truth that has one more row on the stray vertex."""
     raw, n = raw_scan(creature)
     save_mesh(raw, tmp_path / "raw.off")
-    save_mesh(creature, tmp_path / "target.off")
+    save_mesh(creature, tmp_path / "body.off")
     truth = np.arange(0, n, 7)
-    # one more reference point on the stray vertex, which the repair leaves out
-    np.savetxt(tmp_path / "raw.vts", np.r_[truth, raw.n_verts - 1] + 1, fmt="%d")
-    np.savetxt(tmp_path / "target.vts", np.r_[truth, 0] + 1, fmt="%d")
+    np.savetxt(tmp_path / "raw.vts", np.r_[truth, raw.n_verts - 1] + 1, fmt="%d")  # the last: left out
+    np.savetxt(tmp_path / "body.vts", np.r_[truth, 0] + 1, fmt="%d")
+    other = "target" if raw_role == "source" else "source"
+    pair = {
+        raw_role: "raw.off",
+        other: "body.off",
+        f"{raw_role}_corr": "raw.vts",
+        f"{other}_corr": "body.vts",
+    }
+    return raw, n, truth, pair
 
-    def run(*overrides: str) -> tuple[int, dict]:
-        with initialize_config_module(config_module="conf", version_base="1.3"):
-            cfg = compose(
-                config_name="match",
-                overrides=[
-                    f"source={tmp_path / 'raw.off'}",
-                    f"target={tmp_path / 'target.off'}",
-                    f"source_corr={tmp_path / 'raw.vts'}",
-                    f"target_corr={tmp_path / 'target.vts'}",
-                    "resolution=120",
-                    "output.png=false",
-                    "output.viewer=false",
-                    *overrides,
-                ],
-            )
-        out = tmp_path / ("run_" + "_".join(o.split("=")[0] for o in overrides))
-        return run_match(cfg, out), json.loads((out / "result.json").read_text()), out
+
+def test_the_command_line_repairs_a_raw_source_and_writes_its_own_indices(tmp_path, creature):
+    raw, n, truth, pair = _raw_and_body_files(tmp_path, creature, "source")
+
+    def run(*overrides: str):
+        return _match_files(tmp_path, pair, *overrides)
 
     code, result, _ = run()
     assert code == 2 and "repair=true would match" in result["error"] and "raw.off" in result["error"]
@@ -182,30 +196,9 @@ def test_a_raw_target_is_repaired_too_and_its_own_indices_come_back(creature):
 
 
 def test_the_command_line_writes_a_repaired_target_in_its_own_indices(tmp_path, creature):
-    raw, n = raw_scan(creature)
-    save_mesh(creature, tmp_path / "source.off")
-    save_mesh(raw, tmp_path / "raw.off")
-    truth = np.arange(0, n, 7)
-    np.savetxt(tmp_path / "source.vts", np.r_[truth, 0] + 1, fmt="%d")
-    np.savetxt(tmp_path / "raw.vts", np.r_[truth, raw.n_verts - 1] + 1, fmt="%d")  # the last: left out
-    with initialize_config_module(config_module="conf", version_base="1.3"):
-        cfg = compose(
-            config_name="match",
-            overrides=[
-                f"source={tmp_path / 'source.off'}",
-                f"target={tmp_path / 'raw.off'}",
-                f"source_corr={tmp_path / 'source.vts'}",
-                f"target_corr={tmp_path / 'raw.vts'}",
-                "resolution=120",
-                "repair=true",
-                "dense.inverse=true",
-                "output.png=false",
-                "output.viewer=false",
-            ],
-        )
-    out = tmp_path / "run"
-    assert run_match(cfg, out) == 0
-    result = json.loads((out / "result.json").read_text())
+    raw, n, truth, pair = _raw_and_body_files(tmp_path, creature, "target")
+    code, result, out = _match_files(tmp_path, pair, "repair=true", "dense.inverse=true")
+    assert code == 0
     assert any("raw.off: repair=true matches its largest clean piece" in text for text in result["warnings"])
     assert np.load(out / "dense_geodesic_errors.npy").shape == truth.shape
     matches = np.loadtxt(out / "matches.csv", delimiter=",", skiprows=1, dtype=np.int64)

@@ -70,8 +70,8 @@ def load_inputs(cfg) -> MatchInputs:
             source, target, source_corr, target_corr, int(cfg.resolution), f"{cfg.source} -> {cfg.target}"
         )
         if target_repaired is not None:
-            inputs = repaired_target_inputs(inputs, target_repaired)
-        return inputs if repaired is None else repaired_inputs(inputs, repaired)
+            inputs = with_repaired(inputs, target_repaired, "target")
+        return inputs if repaired is None else with_repaired(inputs, repaired, "source")
     data = cfg.data
     shapes = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.source_seed)
     other = SyntheticShapes(n_shapes=1, n_verts=data.n_verts, seed=data.target_seed)
@@ -81,45 +81,25 @@ def load_inputs(cfg) -> MatchInputs:
     )
 
 
-def repaired_inputs(inputs: MatchInputs, repaired: Repair) -> MatchInputs:
-    """``inputs`` whose source is the largest clean piece of the user's (``repair=true``).
+def with_repaired(inputs: MatchInputs, repaired: Repair, role: str) -> MatchInputs:
+    """``inputs`` whose ``role`` mesh ("source" or "target") is the largest clean piece of the user's.
 
-    The ground truth keeps the reference points inside the piece, renumbered to it;
-    ``piece_of`` says where the piece's vertices and faces lie in the user's source, and the
-    piece's notes say what was dropped (the report's warnings).
+    The ground truth keeps the reference points inside the piece, that mesh's renumbered to
+    it; ``piece_of`` (source) or ``target_of`` (target) says where the piece's vertices and
+    faces lie in the user's mesh, for the files, and the piece's notes say what was dropped
+    (the report's warnings).
     """
-    piece = repaired.piece
-    source_corr, target_corr = _corr_inside(
-        piece, repaired.n_original, inputs.source_corr, inputs.target_corr
+    piece, other = repaired.piece, "target" if role == "source" else "source"
+    own_corr, other_corr = _corr_inside(
+        piece, repaired.n_original, getattr(inputs, f"{role}_corr"), getattr(inputs, f"{other}_corr")
     )
-    source = dataclasses.replace(piece.mesh, notes=(repaired.note, *piece.mesh.notes))
+    mesh = dataclasses.replace(piece.mesh, notes=(repaired.note, *piece.mesh.notes))
+    if role == "source":
+        where = {"piece_of": (piece.to_original, repaired.face_ids)}
+    else:
+        where = {"target_of": (piece.to_original, repaired.face_ids, repaired.n_original)}
     return dataclasses.replace(
-        inputs,
-        source=source,
-        source_corr=source_corr,
-        target_corr=target_corr,
-        piece_of=(piece.to_original, repaired.face_ids),
-    )
-
-
-def repaired_target_inputs(inputs: MatchInputs, repaired: Repair) -> MatchInputs:
-    """``inputs`` whose target is the largest clean piece of the user's (``repair=true``).
-
-    The ground truth keeps the reference points whose target vertex is inside the piece
-    (renumbered to it); ``target_of`` says where the piece's vertices and faces lie in the
-    user's target, for the files.
-    """
-    piece = repaired.piece
-    target_corr, source_corr = _corr_inside(
-        piece, repaired.n_original, inputs.target_corr, inputs.source_corr
-    )
-    target = dataclasses.replace(piece.mesh, notes=(repaired.note, *piece.mesh.notes))
-    return dataclasses.replace(
-        inputs,
-        target=target,
-        source_corr=source_corr,
-        target_corr=target_corr,
-        target_of=(piece.to_original, repaired.face_ids, repaired.n_original),
+        inputs, **{role: mesh, f"{role}_corr": own_corr, f"{other}_corr": other_corr}, **where
     )
 
 
