@@ -338,7 +338,7 @@ def main() -> None:
     args = parser.parse_args()
     work = Path(tempfile.mkdtemp(prefix="audit_"))
     rows = []
-    for case in make_cases(Path(args.data), work):
+    for case in make_cases(Path(args.data).resolve(), work):  # the cases run in other folders
         if args.only and case.name not in args.only:
             continue
         row = run_case(case, work, args.memory_gib, args.timeout)
