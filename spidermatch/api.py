@@ -27,7 +27,14 @@ from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
 from spidermatch.feature_transfer import pair_features as capped_pair_features
 from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
 from spidermatch.geometry.overlap import estimated_overlap, overlap_part
-from spidermatch.geometry.partial import PairKind, PartialShape, announce_pair, overlap_kind, pair_kind
+from spidermatch.geometry.partial import (
+    PairKind,
+    PartialShape,
+    announce_pair,
+    ids_or_missing,
+    overlap_kind,
+    pair_kind,
+)
 from spidermatch.geometry.repair import Repair, largest_clean_piece
 from spidermatch.model_size import check_meshes_fit
 from spidermatch.validate import check_settings, feature_cap_problem, raise_problems
@@ -398,7 +405,7 @@ def on_whole_target(matching: Matching, piece: PartialShape) -> Matching:
     if matches is not None:
         matches = np.column_stack([matches[:, 0], piece.to_original[matches[:, 1]]])
     if dense_map is not None:
-        dense_map = np.where(dense_map >= 0, piece.to_original[np.maximum(dense_map, 0)], -1)
+        dense_map = ids_or_missing(piece.to_original, dense_map)
     return dataclasses.replace(matching, matches=matches, dense_map=dense_map)
 
 

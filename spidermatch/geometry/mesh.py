@@ -298,11 +298,15 @@ def _check_face_indices(faces: np.ndarray, n_verts: int, name: str) -> None:
         )
 
 
-def _check_degenerate_faces(verts: np.ndarray, faces: np.ndarray, name: str) -> None:
+def degenerate_faces(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces (F,) bool with a repeated vertex or zero area (relative to the mesh's extent)."""
     repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
     extent = float(np.ptp(verts, axis=0).max()) or 1.0
-    zero_area = triangle_areas(verts, faces) <= 1e-14 * extent**2
-    bad = np.flatnonzero(repeated | zero_area)
+    return repeated | (triangle_areas(verts, faces) <= 1e-14 * extent**2)
+
+
+def _check_degenerate_faces(verts: np.ndarray, faces: np.ndarray, name: str) -> None:
+    bad = np.flatnonzero(degenerate_faces(verts, faces))
     if bad.size:
         raise MeshError(
             f"{name}: {bad.size} degenerate faces (repeated vertex or zero area), "
@@ -321,8 +325,16 @@ def _check_unreferenced(faces: np.ndarray, n_verts: int, name: str) -> None:
         )
 
 
+def edge_face_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unique edges (E, 2), the unique edge of each face edge (3F,) and how many faces each has (E,)."""
+    edges, inverse, counts = np.unique(
+        face_edges(faces).reshape(-1, 2), axis=0, return_inverse=True, return_counts=True
+    )
+    return edges, inverse.reshape(-1), counts
+
+
 def _check_manifold_edges(faces: np.ndarray, name: str) -> None:
-    edges, counts = np.unique(face_edges(faces).reshape(-1, 2), axis=0, return_counts=True)
+    edges, _, counts = edge_face_counts(faces)
     bad = counts > 2
     if bad.any():
         first = edges[bad][0]
@@ -330,6 +342,19 @@ def _check_manifold_edges(faces: np.ndarray, name: str) -> None:
             f"{name}: {int(bad.sum())} non-manifold edges shared by more than two faces "
             f"(first: edge {first.tolist()} in {int(counts[bad][0])} faces)"
         )
+
+
+def shared_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every face edge, and the two entries of each edge that two faces share.
+
+    Returns ``edges`` (3F, 2) sorted pairs (edge k of face f, opposite corner k, is entry
+    3f + k), and ``first``, ``second`` (S,) each: the two entries of every shared edge.
+    ``faces`` (F, 3) must have at most two faces on every edge.
+    """
+    edges = face_edges(faces).reshape(-1, 2)
+    order = np.lexsort((edges[:, 1], edges[:, 0]))
+    same = np.all(edges[order[1:]] == edges[order[:-1]], axis=1)
+    return edges, order[:-1][same], order[1:][same]
 
 
 def vertex_fans(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -349,11 +374,8 @@ def vertex_fans(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     """
     n_corners = faces.size
-    edges = face_edges(faces).reshape(-1, 2)  # edge k of face f is opposite corner k
+    edges, first, second = shared_edges(faces)
     face_of = np.repeat(np.arange(len(faces)), 3)
-    order = np.lexsort((edges[:, 1], edges[:, 0]))
-    same = np.all(edges[order[1:]] == edges[order[:-1]], axis=1)
-    first, second = order[:-1][same], order[1:][same]  # the two occurrences of each interior edge
     corner_a = face_of[first] * 3 + np.argmax(faces[face_of[first]] == edges[first, :1], axis=1)
     corner_b = face_of[second] * 3 + np.argmax(faces[face_of[second]] == edges[first, :1], axis=1)
     corner_c = face_of[first] * 3 + np.argmax(faces[face_of[first]] == edges[first, 1:], axis=1)

@@ -63,6 +63,11 @@ class PartialShape:
         return position
 
 
+def ids_or_missing(ids: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """``ids[indices]`` (a piece's indices told in its original's), keeping -1 (none) as -1."""
+    return np.where(indices >= 0, ids[np.maximum(indices, 0)], -1)
+
+
 def kept_part(mesh: Mesh, keep_faces: np.ndarray, name: str, kind: str) -> PartialShape:
     """The largest clean piece of ``mesh`` made of the faces ``keep_faces`` selects.
 

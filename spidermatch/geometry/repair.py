@@ -32,8 +32,10 @@ from spidermatch.geometry.mesh import (
     _check_finite,
     _check_number_types,
     _check_shapes,
-    face_edges,
+    degenerate_faces,
+    edge_face_counts,
     make_mesh,
+    shared_edges,
     triangle_areas,
     vertex_fans,
 )
@@ -72,20 +74,12 @@ class Repair:
         return f"{self.piece.mesh.name}: repair=true matches {self.summary}"
 
 
-def degenerate_faces(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Faces (F,) bool with a repeated vertex or zero area (the loader's criterion)."""
-    repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
-    extent = float(np.ptp(verts, axis=0).max()) or 1.0
-    return repeated | (triangle_areas(verts, faces) <= 1e-14 * extent**2)
-
-
 def faces_on_crowded_edges(faces: np.ndarray) -> np.ndarray:
     """Faces (F,) bool with an edge that more than two faces share (a non-manifold edge)."""
     if len(faces) == 0:
         return np.zeros(0, dtype=bool)
-    edges = np.sort(face_edges(faces).reshape(-1, 2), axis=1)
-    _, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
-    return (counts[inverse.reshape(-1)] > 2).reshape(-1, 3).any(axis=1)
+    _, edge_of, counts = edge_face_counts(faces)
+    return (counts[edge_of] > 2).reshape(-1, 3).any(axis=1)
 
 
 def largest_edge_connected(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -97,12 +91,8 @@ def largest_edge_connected(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """
     if len(faces) == 0:
         return np.zeros(0, dtype=bool)
-    edges = np.sort(face_edges(faces).reshape(-1, 2), axis=1)
-    face_of = np.repeat(np.arange(len(faces)), 3)
-    order = np.lexsort((edges[:, 1], edges[:, 0]))
-    shared = np.all(edges[order[1:]] == edges[order[:-1]], axis=1)
-    first, second = face_of[order[:-1][shared]], face_of[order[1:][shared]]
-    graph = sp.coo_matrix((np.ones(first.size), (first, second)), shape=(len(faces), len(faces)))
+    _, first, second = shared_edges(faces)  # entry 3f + k is face f's edge k
+    graph = sp.coo_matrix((np.ones(first.size), (first // 3, second // 3)), shape=(len(faces),) * 2)
     labels = connected_components(graph, directed=False)[1]
     areas = np.bincount(labels, weights=triangle_areas(verts, faces))
     return labels == np.argmax(areas)
@@ -152,12 +142,11 @@ def largest_clean_piece(mesh: Mesh) -> Repair:
         The arrays cannot be a mesh, no face is left, the piece keeps less than
         ``MIN_KEPT_AREA`` of the area, or the piece fails validation (named in the message).
     """
-    name, verts, faces = mesh.name, np.asarray(mesh.verts), np.asarray(mesh.faces)
+    name, verts, faces = mesh.name, mesh.verts, mesh.faces
     _check_shapes(verts, faces, name)
     _check_number_types(verts, faces, name)
     _check_finite(verts, name)
     _check_face_indices(faces, verts.shape[0], name)
-    faces = faces.astype(np.int64)
     degenerate = degenerate_faces(verts, faces)
     crowded = np.zeros_like(degenerate)
     crowded[~degenerate] = faces_on_crowded_edges(faces[~degenerate])
@@ -167,14 +156,14 @@ def largest_clean_piece(mesh: Mesh) -> Repair:
     keep[keep] = largest_edge_connected(verts, faces[keep])
     keep[keep] = smaller_fans_dropped(verts, faces[keep])
     try:
-        piece = kept_part(Mesh(verts, faces, name), keep, name, "repaired")
+        piece = kept_part(mesh, keep, name, "repaired")
     except ValueError as error:
         raise MeshError(f"{name}: no clean piece is left to match ({error})") from None
     full_area = float(triangle_areas(verts, faces[~degenerate]).sum())
     kept_area = piece.mesh.area / full_area if full_area > 0 else 0.0
     checked = make_mesh(piece.mesh.verts, piece.mesh.faces, name)  # orientation; raises if it cannot
     piece = PartialShape(checked, piece.to_original, kept_area, piece.kind)
-    face_ids = original_faces(piece, Mesh(verts, faces, name))
+    face_ids = original_faces(piece, mesh)
     summary = _summary(mesh, piece, face_ids, int(degenerate.sum()), int(crowded.sum()))
     if kept_area < MIN_KEPT_AREA:
         raise MeshError(

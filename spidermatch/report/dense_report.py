@@ -39,6 +39,7 @@ from spidermatch.eval.metrics import (
     vertex_map_consistency,
 )
 from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.partial import ids_or_missing
 from spidermatch.shutdown import atomic_path
 
 logger = logging.getLogger(__name__)
@@ -77,10 +78,10 @@ def write_dense_outputs(
     written = [csv_path, npz_path]
     if dense.inverse is not None:
         inverse = dense.inverse
-        inverse_vertex = inverse.vertex if vertex_ids is None else _ids_or_missing(vertex_ids, inverse.vertex)
+        inverse_vertex = inverse.vertex if vertex_ids is None else ids_or_missing(vertex_ids, inverse.vertex)
         extra.update(
             inverse_vertex=inverse_vertex,
-            inverse_face=inverse.face if face_ids is None else _ids_or_missing(face_ids, inverse.face),
+            inverse_face=inverse.face if face_ids is None else ids_or_missing(face_ids, inverse.face),
             inverse_bary=inverse.bary,
             inverse_gap=inverse.gap,
         )
@@ -118,11 +119,6 @@ def on_user_target(dense: DenseMap, vertex_ids: np.ndarray, face_ids: np.ndarray
     return DenseMap(
         vertex_ids[dense.vertex], face_ids[dense.face], dense.bary, dense.method, covered, inverse
     )
-
-
-def _ids_or_missing(ids: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """``ids[indices]``, keeping -1 (missing) as -1."""
-    return np.where(indices >= 0, ids[np.maximum(indices, 0)], -1)
 
 
 def _write_vertex_pairs(
