@@ -98,7 +98,7 @@ def assess(low_source: Mesh, low_target: Mesh, low_map: np.ndarray, gap: float |
         "distinct": round(np.unique(low_map).size / max(low_map.size, 1), 4),
         "gap": gap if gap is None or math.isfinite(gap) else None,
         "distortion": round(distortion(low_source, low_target, low_map), 4),
-        "distortion_judged": topology(low_target).boundaries == 0,  # see the module docstring
+        "distortion_judged": topology(low_target).open_boundaries == 0,  # see the module docstring
     }
     return {**judge(figures), **figures}
 

@@ -469,9 +469,10 @@ def faces_to_flip(faces: np.ndarray, name: str = "<mesh>") -> np.ndarray:
     return ~flip if flip.sum() > n_faces / 2 else flip
 
 
-def is_closed(faces: np.ndarray) -> bool:
-    """True if every edge of the (manifold) faces (F, 3) is shared by two faces."""
-    return 2 * len(unique_edges(faces)) == faces.size
+def nearly_closed(verts: np.ndarray, faces: np.ndarray) -> bool:
+    """True if every boundary loop of the (manifold, connected) faces is a small hole."""
+    spans = loop_spans(verts, faces)
+    return bool(np.all(spans < SMALL_HOLE_SHARE * triangle_areas(verts, faces).sum()))
 
 
 def signed_volume(verts: np.ndarray, faces: np.ndarray) -> float:
@@ -484,7 +485,8 @@ def make_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>", notes:
     """Validate (verts, faces) and wrap them in a :class:`Mesh`.
 
     Inconsistently oriented faces are reversed (the decimation and every normal need one
-    orientation): on a closed surface to the outward orientation, on an open one to the
+    orientation): on a closed surface, or one closed but for small holes, to the outward
+    orientation, on an open one to the
     orientation most faces share. The mesh's ``notes`` (after the given ``notes``, e.g. the
     loader's) and the log say how many.
     """
@@ -493,7 +495,8 @@ def make_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>", notes:
     notes = tuple(notes)
     if flip.any():
         faces[flip] = faces[flip][:, ::-1]
-        if is_closed(faces) and signed_volume(np.asarray(verts, dtype=np.float64), faces) < 0:
+        points = np.asarray(verts, dtype=np.float64)
+        if nearly_closed(points, faces) and signed_volume(points - points.mean(axis=0), faces) < 0:
             faces, flip = faces[:, ::-1].copy(), ~flip
         note = (
             f"{name}: {int(flip.sum())} of {len(faces)} faces were oriented against their neighbours; "
@@ -501,7 +504,18 @@ def make_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>", notes:
         )
         logger.warning("%s", note)
         notes += (note,)
-    return Mesh(np.asarray(verts, dtype=np.float64), faces, name, notes)
+    mesh = Mesh(np.asarray(verts, dtype=np.float64), faces, name, notes)
+    mesh.cached(VALIDATED, lambda: True)
+    return mesh
+
+
+VALIDATED = "validated"
+"""Cache key :func:`make_mesh` sets: the mesh passed :func:`validate_mesh` with its faces as they are."""
+
+
+def is_validated(mesh: Mesh) -> bool:
+    """True if :func:`make_mesh` made ``mesh`` (its arrays are read-only, so they are still what it checked)."""
+    return bool(mesh._cache.get(VALIDATED, False))
 
 
 def mean_incident_edge_length(mesh: Mesh) -> np.ndarray:
@@ -510,6 +524,18 @@ def mean_incident_edge_length(mesh: Mesh) -> np.ndarray:
     total = np.bincount(edges.reshape(-1), np.repeat(mesh.edge_lengths, 2), minlength=mesh.n_verts)
     count = np.bincount(edges.reshape(-1), minlength=mesh.n_verts)
     return total / np.maximum(count, 1)
+
+
+SMALL_HOLE_SHARE = 0.005
+"""A boundary loop that spans less than this share of its mesh's area is a small hole.
+
+A raw scan of a whole surface has such holes where the scanner saw nothing (an armpit, the
+top of the head, a cut at a wrist): they do not make it a part. The area a loop spans is the
+length of its vector area, the area of the cap that would close it (a wrist about 0.1 % of a
+body, a foot sole about 1 %, a cut at the waist 4 %, a single view's silhouette far more).
+Measured on FAUST_r pairs (docs/partial.md, "Small holes"): a source or target with holes up
+to this size matches as a whole shape as accurately as without them.
+"""
 
 
 @dataclass(frozen=True)
@@ -524,27 +550,81 @@ class Topology:
         Number of boundary loops.
     genus : int
         (2 - euler - boundaries) / 2.
+    small_holes : int
+        How many of the boundary loops are small holes (:data:`SMALL_HOLE_SHARE`).
+    small_hole_share : float
+        The area those small holes span together, as a share of the mesh's area.
 
     """
 
     euler: int
     boundaries: int
     genus: int
+    small_holes: int = 0
+    small_hole_share: float = 0.0
+
+    @property
+    def open_boundaries(self) -> int:
+        """Boundary loops that are not small holes: the cuts that make a mesh a part."""
+        return self.boundaries - self.small_holes
 
     def __str__(self) -> str:
-        loops = "closed" if not self.boundaries else f"{self.boundaries} boundary loop(s)"
+        holes = (
+            f"{self.small_holes} small hole(s) spanning {self.small_hole_share:.2%} of its area"
+            if self.small_holes
+            else ""
+        )
+        if not self.open_boundaries:
+            loops = f"closed but for {holes}" if holes else "closed"
+        else:
+            loops = f"{self.open_boundaries} boundary loop(s)" + (f" and {holes}" if holes else "")
         return f"genus {self.genus}, {loops}"
 
 
+def boundary_loops(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary edges of manifold faces, directed as their face runs them, and the loop of each.
+
+    Returns
+    -------
+    edges : np.ndarray, shape (B, 2), int64
+    loop : np.ndarray, shape (B,), int64
+        Index of the boundary loop (a connected component of the boundary edges) of each edge.
+    """
+    directed = np.asarray(faces)[:, [1, 2, 2, 0, 0, 1]].reshape(-1, 2)
+    _, index, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
+    edges = directed[counts[index.reshape(-1)] == 1]
+    if not len(edges):
+        return edges, np.zeros(0, dtype=np.int64)
+    nodes, ends = np.unique(edges, return_inverse=True)
+    ends = ends.reshape(-1, 2)
+    graph = sp.coo_matrix((np.ones(len(ends)), (ends[:, 0], ends[:, 1])), shape=(nodes.size,) * 2)
+    labels = connected_components(graph, directed=False)[1]
+    return edges, labels[ends[:, 0]].astype(np.int64)
+
+
+def loop_spans(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area each boundary loop spans (the length of its vector area), shape (L,).
+
+    The vector area of a closed polygon, half the sum of p_a x p_b over its directed edges,
+    is the area of any cap closing it projected onto its best plane: the size of the hole.
+    """
+    edges, loop = boundary_loops(faces)
+    if not len(edges):
+        return np.zeros(0)
+    points = np.asarray(verts, dtype=np.float64)
+    points = points - points.mean(axis=0)  # a closed loop's vector area does not depend on it
+    cross = np.cross(points[edges[:, 0]], points[edges[:, 1]])
+    vector = np.stack([np.bincount(loop, cross[:, k]) for k in range(3)], axis=1)
+    return 0.5 * np.linalg.norm(vector, axis=1)
+
+
 def topology(mesh: Mesh) -> Topology:
-    """Genus and boundary loops of a validated (connected, manifold) mesh."""
+    """Genus, boundary loops and small holes of a validated (connected, manifold) mesh."""
     edges, counts = np.unique(face_edges(mesh.faces).reshape(-1, 2), axis=0, return_counts=True)
     euler = mesh.n_verts - len(edges) + mesh.n_faces
-    boundary = edges[counts == 1]
-    loops = 0
-    if len(boundary):
-        nodes, index = np.unique(boundary, return_inverse=True)
-        index = index.reshape(-1, 2)
-        graph = sp.coo_matrix((np.ones(len(index)), (index[:, 0], index[:, 1])), shape=(nodes.size,) * 2)
-        loops = connected_components(graph, directed=False)[0]
-    return Topology(int(euler), int(loops), int((2 - euler - loops) // 2))
+    spans = loop_spans(mesh.verts, mesh.faces) / mesh.area
+    small = spans < SMALL_HOLE_SHARE
+    loops = len(spans)
+    return Topology(
+        int(euler), int(loops), int((2 - euler - loops) // 2), int(small.sum()), float(spans[small].sum())
+    )

@@ -19,8 +19,10 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from spidermatch.geometry.mesh import (
+    SMALL_HOLE_SHARE,
     Mesh,
     MeshError,
+    Topology,
     face_edges,
     mean_incident_edge_length,
     topology,
@@ -347,9 +349,8 @@ INCOMPLETE_TARGET = (
 
 
 def announce_pair(kind: PairKind) -> None:
-    """Log how a pair is matched: the partial mode's reason, and any caution as a warning."""
-    if kind.mode in ("partial", "overlap"):
-        logger.info("%s mode: %s", kind.mode, kind.reason)
+    """Log how a pair is matched and why, and any caution as a warning."""
+    logger.info("%s mode: %s", kind.mode, kind.reason)
     if kind.caution:
         logger.warning("%s", kind.caution)
 
@@ -379,13 +380,13 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
     """
     top_x, top_y = topology(source), topology(target)
     ratio = source.area / target.area
-    if (top_x.genus, top_x.boundaries) == (top_y.genus, top_y.boundaries):
-        return PairKind("whole", f"both meshes are {top_x}", ratio)
+    if (top_x.genus, top_x.open_boundaries) == (top_y.genus, top_y.open_boundaries):
+        return PairKind("whole", whole_reason(source, target, top_x, top_y), ratio)
     refusal = (
         f"the meshes differ in topology: {source.name} has {top_x}, {target.name} has {top_y}. "
         "SpiderMatch maps a curve through all of the source onto the target"
     )
-    if top_x.boundaries > top_y.boundaries and top_x.genus <= top_y.genus:
+    if top_x.open_boundaries > top_y.open_boundaries and top_x.genus <= top_y.genus:
         if not partial:
             raise MeshError(
                 f"{refusal}; the source looks like a part of the target: set partial=auto to match it"
@@ -407,8 +408,8 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
             f"{source.name} has {top_x} and {ratio:.0%} of the area of {target.name} ({top_y}): "
             "matched as a part of it"
         )
-        return PairKind("partial", reason, ratio, INCOMPLETE_TARGET if top_y.boundaries else "")
-    if top_y.boundaries > top_x.boundaries and top_y.genus <= top_x.genus:
+        return PairKind("partial", reason, ratio, INCOMPLETE_TARGET if top_y.open_boundaries else "")
+    if top_y.open_boundaries > top_x.open_boundaries and top_y.genus <= top_x.genus:
         raise MeshError(
             f"{refusal}; the target looks like a part of the source. The partial mode maps a part onto "
             "its whole: swap source and target"
@@ -416,6 +417,17 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
     raise MeshError(
         f"{refusal}; across different genus no consistent matching may exist and the solver can "
         "search for hours. Repair the meshes, or set allow_topology_mismatch=true to try anyway"
+    )
+
+
+def whole_reason(source: Mesh, target: Mesh, top_x: Topology, top_y: Topology) -> str:
+    """Why a pair is matched as two whole shapes: both the same, small holes tolerated (named)."""
+    if str(top_x) == str(top_y) and not top_x.small_holes:
+        return f"both meshes are {top_x}"
+    return (
+        f"{source.name} is {top_x} and {target.name} {top_y}: small holes (each spanning under "
+        f"{SMALL_HOLE_SHARE:.1%} of its mesh's area) are where a scanner saw nothing, not cuts, so both are "
+        "matched as whole shapes"
     )
 
 
@@ -438,7 +450,7 @@ def overlap_kind(source: Mesh, target: Mesh) -> PairKind:
         f"partial=both: {source.name} ({top_x}) and {target.name} ({top_y}) are matched as two parts "
         "of one surface in one unit; only the source region estimated to overlap the target is matched"
     )
-    whole = [mesh.name for mesh, top in ((source, top_x), (target, top_y)) if top.boundaries == 0]
+    whole = [mesh.name for mesh, top in ((source, top_x), (target, top_y)) if top.open_boundaries == 0]
     caution = ""
     if whole:
         caution = (

@@ -1,0 +1,129 @@
+"""Small holes (where a scanner saw nothing) are not cuts: such meshes are matched as whole shapes."""
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+from hydra import compose, initialize_config_module
+
+from spidermatch.cli.match import run_match
+from spidermatch.data.synthetic import make_creature, random_rotation
+from spidermatch.geometry.io import save_mesh
+from spidermatch.geometry.mesh import (
+    SMALL_HOLE_SHARE,
+    Mesh,
+    MeshError,
+    boundary_loops,
+    loop_spans,
+    make_mesh,
+    signed_volume,
+    topology,
+)
+from spidermatch.geometry.partial import pair_kind, plane_cut
+
+
+@pytest.fixture(scope="module")
+def creature() -> Mesh:
+    return make_creature(n_verts=3000, seed=3).mesh  # fine enough that a vertex's 1-ring is a small hole
+
+
+def punched(mesh: Mesh, vertices: list[int], name: str) -> Mesh:
+    """``mesh`` without the faces around each of ``vertices`` (and those vertices): one small hole each."""
+    keep = ~np.isin(mesh.faces, vertices).any(axis=1)
+    used = np.unique(mesh.faces[keep])
+    index = -np.ones(mesh.n_verts, dtype=np.int64)
+    index[used] = np.arange(used.size)
+    return Mesh(mesh.verts[used], index[mesh.faces[keep]], name)
+
+
+def far_apart(mesh: Mesh, count: int) -> list[int]:
+    """``count`` vertices of less than the median area, spread over the mesh (farthest-point order)."""
+    eligible = mesh.vertex_areas < np.median(mesh.vertex_areas)
+    chosen = [int(np.flatnonzero(eligible)[0])]
+    distance = np.where(eligible, np.inf, -np.inf)
+    while len(chosen) < count:
+        distance = np.minimum(distance, np.linalg.norm(mesh.verts - mesh.verts[chosen[-1]], axis=1))
+        chosen.append(int(np.argmax(distance)))
+    return chosen
+
+
+def test_a_loop_spans_the_area_of_the_surface_it_bounds_wherever_the_mesh_lies():
+    grid = trimesh.creation.box(extents=(2.0, 3.0, 1.0))
+    lid = grid.face_normals[:, 2] > 0.5  # a box without its lid: one loop around a 2 x 3 opening
+    box = Mesh(*_compact(grid.vertices, grid.faces[~lid]), "open box")
+    assert loop_spans(box.verts, box.faces) == pytest.approx([6.0])
+    turned = box.verts @ random_rotation(np.random.default_rng(1)).T + np.array([100.0, -50.0, 7.0])
+    assert loop_spans(turned, box.faces) == pytest.approx([6.0])
+    sphere = trimesh.creation.icosphere(subdivisions=5)
+    below = (sphere.vertices[sphere.faces][:, :, 2] < -0.8).any(axis=1)
+    capless = Mesh(*_compact(sphere.vertices, sphere.faces[~below]), "capless")
+    edges, _ = boundary_loops(capless.faces)
+    rim = np.linalg.norm(capless.verts[edges[:, 0], :2], axis=1)
+    (span,) = loop_spans(capless.verts, capless.faces)
+    assert np.pi * rim.min() ** 2 < span < np.pi * rim.max() ** 2
+
+
+def _compact(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    used = np.unique(faces)
+    index = -np.ones(len(verts), dtype=np.int64)
+    index[used] = np.arange(used.size)
+    return np.asarray(verts)[used], index[faces]
+
+
+def test_small_holes_are_counted_apart_from_cuts(creature):
+    holed = topology(punched(creature, far_apart(creature, 3), "holed"))
+    assert (holed.boundaries, holed.small_holes, holed.open_boundaries, holed.genus) == (3, 3, 0, 0)
+    assert 0 < holed.small_hole_share < 3 * SMALL_HOLE_SHARE
+    assert str(holed).startswith("genus 0, closed but for 3 small hole(s) spanning")
+    cut = topology(plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.5, "half").mesh)
+    assert (cut.open_boundaries, cut.small_holes) == (cut.boundaries, 0) and cut.boundaries >= 1
+    assert str(topology(creature)) == "genus 0, closed"
+
+
+def test_small_holes_on_either_side_do_not_make_a_pair_partial(creature):
+    spots = far_apart(creature, 5)
+    scan_x, scan_y = punched(creature, spots[:2], "scan_x.off"), punched(creature, spots[2:], "scan_y.off")
+    for source, target in ((creature, scan_y), (scan_x, creature), (scan_x, scan_y), (scan_y, scan_x)):
+        kind = pair_kind(source, target)
+        assert kind.mode == "whole" and kind.caution == ""
+        assert "small holes" in kind.reason and source.name in kind.reason and target.name in kind.reason
+    assert pair_kind(creature, creature).reason == "both meshes are genus 0, closed"
+    part = plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.5, "half.off").mesh
+    kind = pair_kind(part, scan_y)  # a cut part against a scan with small holes: not two parts
+    assert kind.mode == "partial" and kind.caution == ""
+    with pytest.raises(MeshError, match="swap source and target"):
+        pair_kind(scan_y, part)
+
+
+def test_a_nearly_closed_mesh_is_oriented_outwards_like_a_closed_one(creature):
+    scan = punched(creature, far_apart(creature, 2), "scan")
+    inwards = scan.faces[:, ::-1].copy()
+    inwards[0] = inwards[0, ::-1]  # one face against its neighbours: the loader re-orients all
+    oriented = make_mesh(scan.verts, inwards, "scan")
+    assert signed_volume(oriented.verts - oriented.verts.mean(axis=0), oriented.faces) > 0
+    assert np.array_equal(oriented.faces, scan.faces)
+
+
+def test_the_command_line_matches_a_target_with_small_holes_as_a_whole_shape(tmp_path, creature):
+    scan = punched(creature, far_apart(creature, 3), "scan")
+    save_mesh(creature, tmp_path / "source.off")
+    save_mesh(scan, tmp_path / "target.off")
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        cfg = compose(
+            config_name="match",
+            overrides=[
+                f"source={tmp_path / 'source.off'}",
+                f"target={tmp_path / 'target.off'}",
+                "output.png=false",
+                "resolution=150",
+                "solver.time_limit=600",
+            ],
+        )
+    assert run_match(cfg, tmp_path / "run") == 0
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert result["pair"]["mode"] == "whole" and "3 small hole(s)" in result["pair"]["reason"]
+    assert result["status"] == "optimal"
+    with np.load(tmp_path / "run" / "dense_map.npz") as dense:
+        assert dense["vertex"].shape == (creature.n_verts,)
+        assert dense["vertex"].max() < scan.n_verts
