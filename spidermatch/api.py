@@ -25,7 +25,7 @@ import numpy as np
 from spidermatch import defaults
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
 from spidermatch.feature_transfer import pair_features as capped_pair_features
-from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
+from spidermatch.geometry.mesh import Mesh, MeshError, is_validated, make_mesh
 from spidermatch.geometry.overlap import estimated_overlap, overlap_part
 from spidermatch.geometry.partial import (
     PairKind,
@@ -161,7 +161,7 @@ def as_mesh(shape, role: str) -> Mesh:
 
     """
     if isinstance(shape, Mesh):
-        return shape
+        return validated(shape)
     if isinstance(shape, (str, os.PathLike)):
         from spidermatch.geometry.io import load_mesh
 
@@ -177,7 +177,9 @@ def as_mesh(shape, role: str) -> Mesh:
 
 
 def _unchecked_mesh(shape, role: str) -> Mesh | None:
-    """``shape`` (a path, trimesh object or (V, F) pair) read without validation; None if unreadable."""
+    """``shape`` (a path, trimesh object, (V, F) pair or Mesh) read without validation; None if unreadable."""
+    if isinstance(shape, Mesh):
+        return shape
     try:
         if isinstance(shape, (str, os.PathLike)):
             from spidermatch.geometry.io import load_mesh
@@ -192,6 +194,17 @@ def _unchecked_mesh(shape, role: str) -> Mesh | None:
         return Mesh(np.asarray(verts, dtype=np.float64), np.asarray(faces, dtype=np.int64), name)
     except (MeshError, ValueError, TypeError):
         return None
+
+
+def validated(mesh: Mesh) -> Mesh:
+    """``mesh`` if :func:`make_mesh` made it, else made from its arrays (checked, faces oriented).
+
+    ``Mesh(verts, faces)`` checks nothing, so a mesh a user builds that way is checked here as
+    a file would be: a broken one is refused naming it and the problem, not deep in a stage.
+    """
+    if is_validated(mesh):
+        return mesh
+    return make_mesh(mesh.verts, mesh.faces, mesh.name, mesh.notes)
 
 
 def _from_arrays(verts, faces, name: str) -> Mesh:
@@ -418,7 +431,7 @@ def mesh_of(shape, role: str, repair: bool) -> tuple[Mesh, Repair | None]:
     try:
         return as_mesh(shape, role), None
     except MeshError as error:
-        unchecked = None if isinstance(shape, Mesh) else _unchecked_mesh(shape, role)
+        unchecked = _unchecked_mesh(shape, role)
         if unchecked is None:
             raise
         try:

@@ -105,6 +105,13 @@ def test_bad_inputs_are_clear_errors(pair, tmp_path):
         spidermatch.match(pair.source, (np.eye(3), faces))
     with pytest.raises(TypeError, match="source: expected a mesh file path"):
         spidermatch.match(42, pair.target)
+    mesh = pair.y.mesh  # a Mesh built by its constructor is checked as a file is, not trusted
+    island = np.array([[0, 1, 2]]) + mesh.n_verts
+    two_pieces = spidermatch.Mesh(
+        np.vstack([mesh.verts, mesh.verts[:3] + 10.0]), np.vstack([mesh.faces, island]), "two pieces"
+    )
+    with pytest.raises(MeshError, match="two pieces: the mesh has 2 connected components.*repair=true"):
+        spidermatch.match(pair.source, two_pieces)
     with pytest.raises(ValueError, match="LearnedExtractor"):
         spidermatch.match(pair.source, pair.target, features="learned")
     n_x, n_y = pair.x.mesh.n_verts, pair.y.mesh.n_verts
