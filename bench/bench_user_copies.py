@@ -12,7 +12,11 @@ files and on copies made the way users' files arrive:
     the ``sub320k`` copy (below) decimated to 200 000 vertices (libigl edge collapses), its
     ground truth moved to the nearest remaining vertex;
 ``sub320k``
-    three times (about 320 000 vertices), with the same noise.
+    three times (about 320 000 vertices), with the same noise;
+``holes``
+    small holes where a scanner saw nothing: the faces around ``SCAN_HOLES`` random vertices
+    (two rings: about 0.3 % of the area each) cut from each mesh, 4 from the source and 6 from
+    the target, each reference point of a cut vertex moved to the nearest vertex left.
 
 Loop subdivision keeps the original vertices first, so the ``corres/*.vts`` ground truth
 applies to the subdivided copies. Each match runs as a user runs it, without ground truth:
@@ -60,7 +64,11 @@ from spidermatch.geometry.operators import vertex_normals  # noqa: E402
 from spidermatch.geometry.remesh import decimate, nearest_vertices  # noqa: E402
 
 VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
-KINDS = ("clean", "scaled", "sub80k", "sub200k", "sub320k")
+KINDS = ("clean", "scaled", "sub80k", "sub200k", "sub320k", "holes")
+SCAN_HOLES = (4, 6)
+"""Small holes cut from the source and from the target by the ``holes`` copy."""
+HOLE_RINGS = 2
+"""Rings of faces around each hole's centre vertex that the ``holes`` copy cuts away."""
 SUBDIVISIONS = {"sub80k": 2, "sub200k": 3, "sub320k": 3}
 DECIMATED_VERTICES = {"sub200k": 200_000}
 
@@ -89,6 +97,8 @@ def copies(kind: str, meshes: list[Path], corr: list[Path], folder: Path, seed: 
         out = folder / f"{meshes[1].stem}_mm.off"
         save_mesh(Mesh(moved, mesh.faces), out)
         return [meshes[0], out], corr
+    if kind == "holes":
+        return holed_copies(meshes, corr, folder, rng)
     made_meshes, made_corr = [], []
     for path, truth in zip(meshes, corr):
         out, out_corr = folder / f"{path.stem}_{kind}.off", folder / f"{path.stem}_{kind}.vts"
@@ -102,6 +112,33 @@ def copies(kind: str, meshes: list[Path], corr: list[Path], folder: Path, seed: 
         made_meshes.append(out)
         made_corr.append(out_corr)
     return made_meshes, made_corr
+
+
+def holed_copies(meshes: list[Path], corr: list[Path], folder: Path, rng) -> tuple[list, list]:
+    """Each mesh with ``SCAN_HOLES`` small holes cut, and its ground truth on the vertices left."""
+    made_meshes, made_corr = [], []
+    for path, truth, holes in zip(meshes, corr, SCAN_HOLES):
+        mesh = load_mesh(path)
+        holed = holed_copy(mesh, rng.choice(mesh.n_verts, size=holes, replace=False), HOLE_RINGS)
+        out, out_corr = folder / f"{path.stem}_holes.off", folder / f"{path.stem}_holes.vts"
+        save_mesh(holed, out)
+        write_vts(nearest_vertices(holed.verts, mesh.verts[read_vts(truth)]), out_corr)
+        made_meshes.append(out)
+        made_corr.append(out_corr)
+    return made_meshes, made_corr
+
+
+def holed_copy(mesh: Mesh, centres: np.ndarray, rings: int) -> Mesh:
+    """``mesh`` without the faces within ``rings`` rings of each centre vertex (and vertices left on none)."""
+    inside = np.zeros(mesh.n_verts, dtype=bool)
+    inside[centres] = True
+    for _ in range(rings - 1):
+        inside[mesh.faces[inside[mesh.faces].any(axis=1)]] = True
+    faces = mesh.faces[~inside[mesh.faces].any(axis=1)]
+    used = np.unique(faces)
+    index = -np.ones(mesh.n_verts, dtype=np.int64)
+    index[used] = np.arange(used.size)
+    return Mesh(mesh.verts[used], index[faces], mesh.name)
 
 
 def decimated_copy(mesh: Mesh, truth: np.ndarray, vertices: int) -> tuple[Mesh, np.ndarray]:

@@ -514,7 +514,7 @@ VALIDATED = "validated"
 
 
 def is_validated(mesh: Mesh) -> bool:
-    """True if :func:`make_mesh` made ``mesh`` (its arrays are read-only, so they are still what it checked)."""
+    """True if :func:`make_mesh` made ``mesh`` (its arrays are read-only: still what it checked)."""
     return bool(mesh._cache.get(VALIDATED, False))
 
 
