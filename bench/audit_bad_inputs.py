@@ -103,6 +103,7 @@ def make_cases(data: Path, work: Path) -> list[Case]:
     write_off(work / "tet_a.off", tet_v, tet_f)
     write_off(work / "tet_b.off", tet_v * [1, 1.2, 0.9], tet_f)
     write_off(work / "raw_scan.off", *raw_scan(vx, fx))
+    write_off(work / "scan_holes.off", *scanner_holes(read_off(y)[0], read_off(y)[1], SCANNER_HOLES))
     base = [f"source={x}", f"target={y}", "resolution=150"]
     reuse = work / "reused"
 
@@ -249,7 +250,28 @@ def make_cases(data: Path, work: Path) -> list[Case]:
             "the raw scan as the target, repair=true",
             match(f"source={y}", f"target={work / 'raw_scan.off'}", "resolution=150", "repair=true"),
         ),
+        Case(
+            "scan_holes_target",
+            "the target with three small holes (the faces around 3 vertices cut), no options",
+            match(f"source={x}", f"target={work / 'scan_holes.off'}", "resolution=150"),
+        ),
     ]
+
+
+SCANNER_HOLES = (100, 2500, 4000)
+"""Vertices whose faces ``scanner_holes`` cuts away from tr_reg_071 (three small holes)."""
+
+
+def scanner_holes(verts: np.ndarray, faces: np.ndarray, centres: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """A closed mesh with the faces around each of ``centres`` cut away, as a scanner leaves holes.
+
+    Returns the vertices left (V - len(centres), 3) and their faces.
+    """
+    keep = ~np.isin(faces, centres).any(axis=1)
+    used = np.unique(faces[keep])
+    index = -np.ones(len(verts), dtype=np.int64)
+    index[used] = np.arange(used.size)
+    return verts[used], index[faces[keep]]
 
 
 def raw_scan(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -191,6 +191,8 @@ def _unchecked_mesh(shape, role: str) -> Mesh | None:
             verts, faces, name = shape.vertices, shape.faces, f"{role} mesh ({type(shape).__name__})"
         else:
             return None
+        if np.iscomplexobj(verts) or np.iscomplexobj(faces):  # refused as given; nothing to repair
+            return None
         return Mesh(np.asarray(verts, dtype=np.float64), np.asarray(faces, dtype=np.int64), name)
     except (MeshError, ValueError, TypeError):
         return None

@@ -94,6 +94,9 @@ def test_small_holes_on_either_side_do_not_make_a_pair_partial(creature):
     assert kind.mode == "partial" and kind.caution == ""
     with pytest.raises(MeshError, match="swap source and target"):
         pair_kind(scan_y, part)
+    advice = r"widest loop spans [0-9.]+% of its area.*allow_topology_mismatch=true"
+    with pytest.raises(MeshError, match=advice):
+        pair_kind(creature, part)
 
 
 def test_a_nearly_closed_mesh_is_oriented_outwards_like_a_closed_one(creature):

@@ -556,6 +556,8 @@ class Topology:
         How many of the boundary loops are small holes (:data:`SMALL_HOLE_SHARE`).
     small_hole_share : float
         The area those small holes span together, as a share of the mesh's area.
+    widest_span : float
+        The largest share of the mesh's area any of its boundary loops spans (0 if closed).
 
     """
 
@@ -564,6 +566,7 @@ class Topology:
     genus: int
     small_holes: int = 0
     small_hole_share: float = 0.0
+    widest_span: float = 0.0
 
     @property
     def open_boundaries(self) -> int:
@@ -628,5 +631,10 @@ def topology(mesh: Mesh) -> Topology:
     small = spans < SMALL_HOLE_SHARE
     loops = len(spans)
     return Topology(
-        int(euler), int(loops), int((2 - euler - loops) // 2), int(small.sum()), float(spans[small].sum())
+        int(euler),
+        int(loops),
+        int((2 - euler - loops) // 2),
+        int(small.sum()),
+        float(spans[small].sum()),
+        float(spans.max(initial=0.0)),
     )

@@ -412,7 +412,9 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
     if top_y.open_boundaries > top_x.open_boundaries and top_y.genus <= top_x.genus:
         raise MeshError(
             f"{refusal}; the target looks like a part of the source. The partial mode maps a part onto "
-            "its whole: swap source and target"
+            f"its whole: swap source and target. If {target.name} is a whole scan with holes (its widest "
+            f"loop spans {top_y.widest_span:.1%} of its area; holes under {SMALL_HOLE_SHARE:.0%} count as "
+            "a scanner's and are ignored), allow_topology_mismatch=true matches the two as whole shapes"
         )
     raise MeshError(
         f"{refusal}; across different genus no consistent matching may exist and the solver can "
