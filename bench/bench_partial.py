@@ -352,7 +352,9 @@ def add_part_options(parser: argparse.ArgumentParser, checkpoint_help: str) -> N
     parser.add_argument("--data", required=True, help="the FAUST_r-style folder the parts were cut from")
     parser.add_argument("--parts", required=True, type=Path, help="the output folder of make_partial.py")
     parser.add_argument("--pairs", required=True, help="pairs file: 'a b' per line")
-    parser.add_argument("--checkpoint", required=True, help=checkpoint_help)
+    parser.add_argument(
+        "--checkpoint", required=True, help=f"{checkpoint_help} (several, comma-separated: their ensemble)"
+    )
     parser.add_argument(
         "--turn-parts",
         type=int,
@@ -387,6 +389,14 @@ def apply_part_search_options(args: argparse.Namespace) -> None:
         if args.placed_orientations < 0:
             raise SystemExit("--placed-orientations must be 0 or more")
         orientation.PLACED_ORIENTATIONS = args.placed_orientations
+
+
+def network_extractor(checkpoint: str):
+    """The extractor of ``--checkpoint``: one network, or the ensemble of a comma-separated list."""
+    from features.learned import EnsembleExtractor, LearnedExtractor
+
+    paths = [path for path in checkpoint.split(",") if path]
+    return LearnedExtractor(paths[0]) if len(paths) == 1 else EnsembleExtractor(paths)
 
 
 def part_manifest(parts: Path) -> list[dict]:
@@ -443,8 +453,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     apply_part_search_options(args)
     logging.basicConfig(level=logging.WARNING)
-    from features.learned import LearnedExtractor
-
     folder = ShapeFolder(args.data)
     manifest = part_manifest(args.parts)
     runs = partial_to_full_runs(manifest, args.pairs, folder)
@@ -463,7 +471,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.runs:
         first, stop = (int(text) for text in args.runs.split(":"))
         runs = runs[first:stop]
-    extractor = "wks" if args.checkpoint == "wks" else LearnedExtractor(args.checkpoint)
+    extractor = "wks" if args.checkpoint == "wks" else network_extractor(args.checkpoint)
     columns = OVERLAP_COLUMNS if args.mode == "both" else COLUMNS
     run = run_overlap_pair if args.mode == "both" else run_pair
     run_and_write(

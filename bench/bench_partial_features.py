@@ -31,6 +31,7 @@ import numpy as np
 from bench_partial import (
     add_part_options,
     apply_part_search_options,
+    network_extractor,
     part_against_whole,
     part_manifest,
     partial_to_full_runs,
@@ -104,10 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.scan_copies is not None:  # the API caps features of large meshes; this bench does not
         raise SystemExit("--scan-copies: measure scans end to end with bench_partial.py")
     apply_part_search_options(args)
-    from features.learned import LearnedExtractor
-
     folder = ShapeFolder(args.data)
-    extractor = LearnedExtractor(args.checkpoint)
+    extractor = network_extractor(args.checkpoint)
     run_and_write(
         planned_runs(args, folder),
         lambda part, target: run_part(part, args.parts, folder, target, args, extractor),

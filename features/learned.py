@@ -424,3 +424,85 @@ def orientation_search_of(
         return search_from_payload(payload, model, loss, turns, use_cache, frames)
     except (KeyError, TypeError, ValueError, AttributeError) as error:
         raise CheckpointError(f"{path}: unreadable orientation reference ({error})") from error
+
+
+class EnsembleOrientations:
+    """The orientations the members of an :class:`EnsembleExtractor` chose, read and cleared as one dict."""
+
+    def __init__(self, members: list[LearnedExtractor]) -> None:
+        self.members = members
+
+    def items(self):
+        """(mesh name and network number, :class:`Orientation`) of every choice of every member."""
+        for number, member in enumerate(self.members, start=1):
+            for name, chosen in member.orientations.items():
+                yield f"{name} (network {number})", chosen
+
+    def get(self, name: str, default=None):
+        """The first member's choice for ``name`` (the one its search reports), else ``default``."""
+        return self.members[0].orientations.get(name, default)
+
+    def clear(self) -> None:
+        """Forget every member's choices (the next pair reports its own)."""
+        for member in self.members:
+            member.orientations.clear()
+
+    def __len__(self) -> int:
+        return sum(len(member.orientations) for member in self.members)
+
+
+class EnsembleExtractor:
+    """Descriptors of several trained networks side by side: each row the members' rows over sqrt(n).
+
+    Two trainings of one recipe place the same hard parts differently (docs/partial.md): one
+    network confuses the front of a single view with the back where another does not. Joined,
+    the similarity of two vertices is the mean of the members' similarities, so a member that
+    is sure outweighs one that is torn. Each member searches its own orientation (and, for a
+    part, placement) and adapts on its own; the rows stay unit-norm, so every cost that reads
+    descriptors reads these unchanged.
+
+    Parameters
+    ----------
+    checkpoints : list of str
+        Two or more checkpoints written by ``spidermatch-train`` (same ``n_eig``, any widths).
+    **options
+        Passed to every member's :class:`LearnedExtractor`.
+
+    """
+
+    name = "learned"
+
+    def __init__(self, checkpoints, **options) -> None:
+        checkpoints = [str(path) for path in checkpoints]
+        if len(checkpoints) < 2:
+            raise ValueError(f"an ensemble needs at least two checkpoints, got {len(checkpoints)}")
+        self.members = [LearnedExtractor(path, **options) for path in checkpoints]
+        self.checkpoint = ", ".join(checkpoints)
+        self.orientations = EnsembleOrientations(self.members)
+
+    @property
+    def turns(self) -> dict[str, float]:
+        """Mesh name -> the first member's turn about the vertical (degrees), where it chose one."""
+        return self.members[0].turns
+
+    def _joined(self, parts: list[np.ndarray]) -> np.ndarray:
+        return np.hstack(parts) / np.sqrt(len(parts))
+
+    def _joined_pairs(self, pairs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+        return self._joined([x for x, _ in pairs]), self._joined([y for _, y in pairs])
+
+    def __call__(self, mesh: Mesh) -> np.ndarray:
+        """Descriptors of shape (V, n * C_out), rows L2-normalised, float64."""
+        return self._joined([member(mesh) for member in self.members])
+
+    def pair_features(self, mesh_x: Mesh, mesh_y: Mesh) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`LearnedExtractor.pair_features` of every member, joined, (V_x, D) and (V_y, D)."""
+        return self._joined_pairs([member.pair_features(mesh_x, mesh_y) for member in self.members])
+
+    def part_features(self, part: Mesh, whole: Mesh) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`LearnedExtractor.part_features` of every member, joined, (V_part, D) and (V_whole, D)."""
+        return self._joined_pairs([member.part_features(part, whole) for member in self.members])
+
+    def parts_features(self, part_x: Mesh, part_y: Mesh) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`LearnedExtractor.parts_features` of every member, joined, (V_x, D) and (V_y, D)."""
+        return self._joined_pairs([member.parts_features(part_x, part_y) for member in self.members])
