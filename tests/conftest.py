@@ -6,6 +6,20 @@ from hydra import compose, initialize_config_module
 from spidermatch.geometry.mesh import Mesh
 
 
+def composed(config_name: str, overrides: list[str]):
+    """The Hydra config ``conf/<config_name>.yaml`` with ``overrides``, as the command line composes it."""
+    with initialize_config_module(config_module="conf", version_base="1.3"):
+        return compose(config_name=config_name, overrides=overrides)
+
+
+def result_of(folder) -> dict:
+    """A run folder's ``result.json``."""
+    import json
+    from pathlib import Path
+
+    return json.loads((Path(folder) / "result.json").read_text())
+
+
 @pytest.fixture(autouse=True)
 def _private_cache(tmp_path_factory, monkeypatch):
     """Every test session writes operator caches to its own folder, never ~/.cache."""

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from hydra import compose, initialize_config_module
+from conftest import composed, result_of
 
 import spidermatch
 from spidermatch import shutdown
@@ -31,13 +31,7 @@ SMALL = ["data.n_verts=700", "resolution=60", "output.png=false"]
 ROOT = Path(__file__).parents[1]
 
 
-def config(name, overrides):
-    with initialize_config_module(config_module="conf", version_base="1.3"):
-        return compose(config_name=name, overrides=overrides)
-
-
-def result_of(folder: Path) -> dict:
-    return json.loads((folder / "result.json").read_text())
+config = composed
 
 
 def creature(seed: int = 0, n_verts: int = 700) -> Mesh:

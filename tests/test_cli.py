@@ -3,7 +3,7 @@ import json
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_module
+from conftest import composed
 
 from spidermatch.cli.match import run_match
 from spidermatch.data.datasets import SyntheticShapes, write_dataset
@@ -13,8 +13,7 @@ SMALL = ["data.n_verts=700", "resolution=60", "solver.time_limit=3600"]
 
 
 def config(overrides):
-    with initialize_config_module(config_module="conf", version_base="1.3"):
-        return compose(config_name="match", overrides=overrides)
+    return composed("match", overrides)
 
 
 @pytest.mark.parametrize("group", ["features=wks", "curve.augmented=true", "costs.target_augmented=true"])

@@ -3,7 +3,7 @@ import json
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_module
+from conftest import composed
 
 from spidermatch.cli.batch import SUMMARY_COLUMNS, summarise, summary_row
 from spidermatch.cli.match import run_match
@@ -13,8 +13,7 @@ SMALL = ["data.n_verts=700", "resolution=60", "output.png=false"]
 
 
 def config(overrides):
-    with initialize_config_module(config_module="conf", version_base="1.3"):
-        return compose(config_name="match", overrides=overrides)
+    return composed("match", overrides)
 
 
 def test_match_writes_a_dense_map_of_every_source_vertex(tmp_path):

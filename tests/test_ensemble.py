@@ -3,8 +3,7 @@
 import numpy as np
 import pytest
 import torch
-from conftest import TINY_TRAINING
-from hydra import compose, initialize_config_module
+from conftest import TINY_TRAINING, composed
 
 from features.learned import EnsembleExtractor, LearnedExtractor
 from features.orientation import Orientation
@@ -20,8 +19,7 @@ def second_checkpoint(tmp_path_factory):
     from train.loop import train
 
     overrides = [*TINY_TRAINING, "run.n_steps=2", "run.val_every=2", "run.progress=false", "seed=1"]
-    with initialize_config_module(config_module="conf", version_base="1.3"):
-        cfg = compose(config_name="train", overrides=overrides)
+    cfg = composed("train", overrides)
     folder = tmp_path_factory.mktemp("train_seed1")
     train(to_train_config(cfg), folder)
     return folder / "best.pt"

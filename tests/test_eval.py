@@ -5,7 +5,7 @@ import subprocess
 import sys
 import time
 
-from hydra import compose, initialize_config_module
+from conftest import composed
 
 from spidermatch.cli.batch import select_pairs
 from spidermatch.cli.collect import main as collect_main
@@ -16,8 +16,7 @@ SMALL = ["resolution=60", "synthetic.n_verts=700"]
 
 
 def config(overrides):
-    with initialize_config_module(config_module="conf", version_base="1.3"):
-        return compose(config_name="eval", overrides=overrides)
+    return composed("eval", overrides)
 
 
 def test_select_pairs_is_seeded():

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from hydra import compose, initialize_config_module
+from conftest import composed, result_of
 
 from spidermatch import shutdown
 from spidermatch.cli.evaluate import run_eval
@@ -29,13 +29,7 @@ from spidermatch.solve.highs import SolverOptionError, set_option
 SMALL = ["data.n_verts=700", "resolution=60", "output.png=false"]
 
 
-def config(name, overrides):
-    with initialize_config_module(config_module="conf", version_base="1.3"):
-        return compose(config_name=name, overrides=overrides)
-
-
-def result_of(folder: Path) -> dict:
-    return json.loads((folder / "result.json").read_text())
+config = composed
 
 
 def write_off(path: Path, verts, faces) -> Path:

@@ -1,11 +1,9 @@
 """Small holes (where a scanner saw nothing) are not cuts: such meshes are matched as whole shapes."""
 
-import json
-
 import numpy as np
 import pytest
 import trimesh
-from hydra import compose, initialize_config_module
+from conftest import composed, result_of
 
 from spidermatch.cli.match import run_match
 from spidermatch.data.synthetic import make_creature, random_rotation
@@ -112,19 +110,10 @@ def test_the_command_line_matches_a_target_with_small_holes_as_a_whole_shape(tmp
     scan = punched(creature, far_apart(creature, 3), "scan")
     save_mesh(creature, tmp_path / "source.off")
     save_mesh(scan, tmp_path / "target.off")
-    with initialize_config_module(config_module="conf", version_base="1.3"):
-        cfg = compose(
-            config_name="match",
-            overrides=[
-                f"source={tmp_path / 'source.off'}",
-                f"target={tmp_path / 'target.off'}",
-                "output.png=false",
-                "resolution=150",
-                "solver.time_limit=600",
-            ],
-        )
+    overrides = [f"source={tmp_path / 'source.off'}", f"target={tmp_path / 'target.off'}", "output.png=false"]
+    cfg = composed("match", [*overrides, "resolution=150", "solver.time_limit=600"])
     assert run_match(cfg, tmp_path / "run") == 0
-    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    result = result_of(tmp_path / "run")
     assert result["pair"]["mode"] == "whole" and "3 small hole(s)" in result["pair"]["reason"]
     assert result["status"] == "optimal"
     with np.load(tmp_path / "run" / "dense_map.npz") as dense:
