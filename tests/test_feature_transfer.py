@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from conftest import composed
 
 from spidermatch.data.synthetic import make_creature
 from spidermatch.feature_transfer import capped_mesh, carry_features, mesh_features, pair_features
@@ -94,10 +95,7 @@ def test_wks_of_a_capped_mesh_is_close_to_the_full_one():
 
 @pytest.mark.parametrize("value", [100, 2.5, -1, "many"])
 def test_a_bad_cap_is_named(value):
-    from hydra import compose, initialize_config_module
-
-    with initialize_config_module(config_module="conf", version_base=None):
-        cfg = compose(config_name="match", overrides=[f"features_max_vertices={value}"])
+    cfg = composed("match", [f"features_max_vertices={value}"])
     with pytest.raises(OptionError, match="features_max_vertices="):
         check_options(cfg)
 

@@ -1,10 +1,8 @@
 """repair=true: a raw scan's largest clean piece is matched; every output names the file's own vertices."""
 
-import json
-
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_module
+from conftest import composed, result_of
 
 import spidermatch
 from spidermatch.cli.match import run_match
@@ -106,19 +104,10 @@ def test_the_api_refuses_a_raw_scan_with_what_repair_would_do_and_matches_it_wit
 
 def _match_files(tmp_path, pair: dict, *overrides: str) -> tuple[int, dict, object]:
     """``spidermatch-match`` on ``pair`` (option -> file in ``tmp_path``): exit code, result.json, folder."""
-    with initialize_config_module(config_module="conf", version_base="1.3"):
-        cfg = compose(
-            config_name="match",
-            overrides=[
-                *(f"{key}={tmp_path / name}" for key, name in pair.items()),
-                "resolution=120",
-                "output.png=false",
-                "output.viewer=false",
-                *overrides,
-            ],
-        )
+    files = [f"{key}={tmp_path / name}" for key, name in pair.items()]
+    cfg = composed("match", [*files, "resolution=120", "output.png=false", "output.viewer=false", *overrides])
     out = tmp_path / ("run_" + "_".join(o.split("=")[0] for o in overrides))
-    return run_match(cfg, out), json.loads((out / "result.json").read_text()), out
+    return run_match(cfg, out), result_of(out), out
 
 
 def _raw_and_body_files(tmp_path, creature, raw_role: str) -> tuple[Mesh, int, np.ndarray, dict]:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from hydra import compose, initialize_config_module
+from conftest import composed
 
 import spidermatch
 from spidermatch.cli.match import run_match
@@ -189,16 +189,8 @@ def _matched_files(tmp_path, source: Mesh, target: Mesh, *overrides: str):
     """Run ``spidermatch-match`` on the two meshes (saved as source.off, target.off) without pictures."""
     save_mesh(source, tmp_path / "source.off")
     save_mesh(target, tmp_path / "target.off")
-    with initialize_config_module(config_module="conf", version_base="1.3"):
-        cfg = compose(
-            config_name="match",
-            overrides=[
-                f"source={tmp_path / 'source.off'}",
-                f"target={tmp_path / 'target.off'}",
-                "output.png=false",
-                *overrides,
-            ],
-        )
+    files = [f"source={tmp_path / 'source.off'}", f"target={tmp_path / 'target.off'}"]
+    cfg = composed("match", [*files, "output.png=false", *overrides])
     out = tmp_path / "run"
     assert run_match(cfg, out) == 0
     return out
