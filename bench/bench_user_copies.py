@@ -61,6 +61,7 @@ from spidermatch.geometry.geodesics import GeodesicDistances  # noqa: E402
 from spidermatch.geometry.io import load_mesh, read_vts, save_mesh, write_vts  # noqa: E402
 from spidermatch.geometry.mesh import Mesh  # noqa: E402
 from spidermatch.geometry.operators import vertex_normals  # noqa: E402
+from spidermatch.geometry.partial import kept_part  # noqa: E402
 from spidermatch.geometry.remesh import decimate, nearest_vertices  # noqa: E402
 
 VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
@@ -129,16 +130,12 @@ def holed_copies(meshes: list[Path], corr: list[Path], folder: Path, rng) -> tup
 
 
 def holed_copy(mesh: Mesh, centres: np.ndarray, rings: int) -> Mesh:
-    """``mesh`` without the faces within ``rings`` rings of each centre vertex (and vertices left on none)."""
+    """``mesh`` without the faces within ``rings`` rings of each centre vertex (its largest clean piece)."""
     inside = np.zeros(mesh.n_verts, dtype=bool)
     inside[centres] = True
     for _ in range(rings - 1):
         inside[mesh.faces[inside[mesh.faces].any(axis=1)]] = True
-    faces = mesh.faces[~inside[mesh.faces].any(axis=1)]
-    used = np.unique(faces)
-    index = -np.ones(mesh.n_verts, dtype=np.int64)
-    index[used] = np.arange(used.size)
-    return Mesh(mesh.verts[used], index[faces], mesh.name)
+    return kept_part(mesh, ~inside[mesh.faces].any(axis=1), mesh.name, "holes").mesh
 
 
 def decimated_copy(mesh: Mesh, truth: np.ndarray, vertices: int) -> tuple[Mesh, np.ndarray]:

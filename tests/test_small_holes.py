@@ -18,7 +18,7 @@ from spidermatch.geometry.mesh import (
     signed_volume,
     topology,
 )
-from spidermatch.geometry.partial import pair_kind, plane_cut
+from spidermatch.geometry.partial import kept_part, pair_kind, plane_cut
 
 
 @pytest.fixture(scope="module")
@@ -28,11 +28,7 @@ def creature() -> Mesh:
 
 def punched(mesh: Mesh, vertices: list[int], name: str) -> Mesh:
     """``mesh`` without the faces around each of ``vertices`` (and those vertices): one small hole each."""
-    keep = ~np.isin(mesh.faces, vertices).any(axis=1)
-    used = np.unique(mesh.faces[keep])
-    index = -np.ones(mesh.n_verts, dtype=np.int64)
-    index[used] = np.arange(used.size)
-    return Mesh(mesh.verts[used], index[mesh.faces[keep]], name)
+    return kept_part(mesh, ~np.isin(mesh.faces, vertices).any(axis=1), name, "holes").mesh
 
 
 def far_apart(mesh: Mesh, count: int) -> list[int]:
