@@ -6,7 +6,9 @@ vertices and the dense stage reads features only to rank nearby candidates. A me
 more vertices than the cap is therefore decimated to about the cap, its features are
 computed there, and each full-resolution vertex gets the inverse-distance-weighted mean of
 its nearest decimated vertices' features (rows re-normalised). ``bench/bench_user_copies.py``
-measures what this costs in accuracy.
+measures what this costs in accuracy. A mesh with small holes (a scanner's, see
+:data:`spidermatch.geometry.mesh.SMALL_HOLE_SHARE`) gets its features on a copy with those holes
+closed by fans (:func:`closed_for_features`).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from spidermatch import defaults
-from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.mesh import Mesh, small_holes_closed
 from spidermatch.geometry.remesh import decimate
 from spidermatch.model.costs import unit_rows
 
@@ -72,20 +74,34 @@ def pair_features(
     method = "parts_features" if overlap else "part_features" if partial else "pair_features"
     if not hasattr(extractor, method):
         return tuple(mesh_features(extractor, mesh, max_vertices, record) for mesh in (source, target))
-    centred = [mesh.centred() for mesh in (source, target)]
+    centred = [closed_for_features(mesh.centred()) for mesh in (source, target)]
     capped = [capped_mesh(mesh, max_vertices, record) for mesh in centred]
     shown = [mesh if low is None else low for low, mesh in zip(capped, centred)]
     computed = getattr(extractor, method)(*shown)
-    return tuple(on_full_mesh(features, low, mesh) for features, low, mesh in zip(computed, capped, centred))
+    return tuple(
+        on_full_mesh(features, low, mesh)[: given.n_verts]
+        for features, low, mesh, given in zip(computed, capped, centred, (source, target))
+    )
+
+
+def closed_for_features(mesh: Mesh) -> Mesh:
+    """``mesh`` with its small holes closed (:func:`small_holes_closed`), its own vertices first.
+
+    A scanner's small hole is not part of the surface the descriptors describe: the Laplacian
+    of the holed mesh has a boundary there that the closed training shapes never had. The
+    features are computed on the closed copy and its own vertices' rows kept (measured in
+    docs/partial.md, "Small holes are not cuts").
+    """
+    return small_holes_closed(mesh)
 
 
 def mesh_features(
     extractor, mesh: Mesh, max_vertices: int | None = MAX_FEATURE_VERTICES, record: dict | None = None
 ) -> np.ndarray:
     """Features (V, D) of one mesh (centred) through ``extractor``, on at most ``max_vertices``."""
-    centred = mesh.centred()
+    centred = closed_for_features(mesh.centred())
     low = capped_mesh(centred, max_vertices, record)
-    return on_full_mesh(extractor(centred if low is None else low), low, centred)
+    return on_full_mesh(extractor(centred if low is None else low), low, centred)[: mesh.n_verts]
 
 
 def on_full_mesh(features, low: Mesh | None, full: Mesh) -> np.ndarray:

@@ -7,6 +7,8 @@ from conftest import composed, result_of
 
 from spidermatch.cli.match import run_match
 from spidermatch.data.synthetic import make_creature, random_rotation
+from spidermatch.feature_transfer import mesh_features
+from spidermatch.geometry.descriptors import WKSExtractor
 from spidermatch.geometry.io import save_mesh
 from spidermatch.geometry.mesh import (
     SMALL_HOLE_SHARE,
@@ -16,6 +18,7 @@ from spidermatch.geometry.mesh import (
     loop_spans,
     make_mesh,
     signed_volume,
+    small_holes_closed,
     topology,
 )
 from spidermatch.geometry.partial import kept_part, pair_kind, plane_cut
@@ -115,3 +118,16 @@ def test_the_command_line_matches_a_target_with_small_holes_as_a_whole_shape(tmp
     with np.load(tmp_path / "run" / "dense_map.npz") as dense:
         assert dense["vertex"].shape == (creature.n_verts,)
         assert dense["vertex"].max() < scan.n_verts
+
+
+def test_small_holes_are_closed_by_fans_for_the_features(creature):
+    scan = punched(creature, far_apart(creature, 3), "scan")
+    closed = small_holes_closed(scan)
+    assert closed.n_verts == scan.n_verts + 3 and np.array_equal(closed.verts[: scan.n_verts], scan.verts)
+    checked = make_mesh(closed.verts, closed.faces, "closed")
+    assert topology(checked).boundaries == 0 and checked.notes == ()  # closed, every fan oriented along
+    assert small_holes_closed(creature) is creature
+    part = plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.5, "half").mesh
+    assert small_holes_closed(part) is part  # a cut is not closed
+    wks = WKSExtractor()
+    assert np.allclose(mesh_features(wks, scan, None), wks(closed.centred())[: scan.n_verts])

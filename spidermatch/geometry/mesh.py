@@ -623,6 +623,30 @@ def loop_spans(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(vector, axis=1)
 
 
+def small_holes_closed(mesh: Mesh) -> Mesh:
+    """``mesh`` with each small hole (:data:`SMALL_HOLE_SHARE`) closed by a fan to its loop's centroid.
+
+    The mesh's vertices come first, then one vertex per closed hole (V + H, 3); the fan's faces
+    follow the surface's orientation. A mesh without small holes is returned as it is.
+    """
+    edges, loop = boundary_loops(mesh.faces)
+    if not len(edges):
+        return mesh
+    spans = loop_spans(mesh.verts, mesh.faces) / mesh.area
+    small = np.flatnonzero(spans < SMALL_HOLE_SHARE)
+    if not small.size:
+        return mesh
+    centre = np.full(len(spans), -1, dtype=np.int64)
+    centre[small] = mesh.n_verts + np.arange(small.size)
+    counts = np.bincount(loop, minlength=len(spans)).astype(float)
+    starts = mesh.verts[edges[:, 0]]
+    sums = np.stack([np.bincount(loop, starts[:, k], minlength=len(spans)) for k in range(3)], axis=1)
+    closing = np.isin(loop, small)
+    fans = np.stack([edges[closing, 1], edges[closing, 0], centre[loop[closing]]], axis=1)
+    verts = np.vstack([mesh.verts, sums[small] / counts[small, None]])
+    return Mesh(verts, np.vstack([mesh.faces, fans]), mesh.name, mesh.notes)
+
+
 def topology(mesh: Mesh) -> Topology:
     """Genus, boundary loops and small holes of a validated (connected, manifold) mesh."""
     edges, counts = np.unique(face_edges(mesh.faces).reshape(-1, 2), axis=0, return_counts=True)
