@@ -486,9 +486,8 @@ def make_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>", notes:
 
     Inconsistently oriented faces are reversed (the decimation and every normal need one
     orientation): on a closed surface, or one closed but for small holes, to the outward
-    orientation, on an open one to the
-    orientation most faces share. The mesh's ``notes`` (after the given ``notes``, e.g. the
-    loader's) and the log say how many.
+    orientation, on an open one to the orientation most faces share. The mesh's ``notes``
+    (after the given ``notes``, e.g. the loader's) and the log say how many.
     """
     flip = validate_mesh(verts, faces, name)
     faces = np.array(faces, dtype=np.int64)
@@ -613,7 +612,11 @@ def loop_spans(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     The vector area of a closed polygon, half the sum of p_a x p_b over its directed edges,
     is the area of any cap closing it projected onto its best plane: the size of the hole.
     """
-    edges, loop = boundary_loops(faces)
+    return spans_of_loops(verts, *boundary_loops(faces))
+
+
+def spans_of_loops(verts: np.ndarray, edges: np.ndarray, loop: np.ndarray) -> np.ndarray:
+    """:func:`loop_spans` of the loops :func:`boundary_loops` returned, shape (L,)."""
     if not len(edges):
         return np.zeros(0)
     points = np.asarray(verts, dtype=np.float64)
@@ -630,9 +633,7 @@ def small_holes_closed(mesh: Mesh) -> Mesh:
     follow the surface's orientation. A mesh without small holes is returned as it is.
     """
     edges, loop = boundary_loops(mesh.faces)
-    if not len(edges):
-        return mesh
-    spans = loop_spans(mesh.verts, mesh.faces) / mesh.area
+    spans = spans_of_loops(mesh.verts, edges, loop) / mesh.area
     small = np.flatnonzero(spans < SMALL_HOLE_SHARE)
     if not small.size:
         return mesh
