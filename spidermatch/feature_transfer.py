@@ -6,9 +6,9 @@ vertices and the dense stage reads features only to rank nearby candidates. A me
 more vertices than the cap is therefore decimated to about the cap, its features are
 computed there, and each full-resolution vertex gets the inverse-distance-weighted mean of
 its nearest decimated vertices' features (rows re-normalised). ``bench/bench_user_copies.py``
-measures what this costs in accuracy. A mesh with small holes (a scanner's, see
-:data:`spidermatch.geometry.mesh.SMALL_HOLE_SHARE`) gets its features on a copy with those holes
-closed by fans (:func:`closed_for_features`).
+measures what this costs in accuracy. A mesh matched as a whole shape that has small holes (a
+scanner's, see :data:`spidermatch.geometry.mesh.SMALL_HOLE_SHARE`) gets its features on a copy
+with those holes closed by fans (:func:`closed_for_features`).
 """
 
 from __future__ import annotations
@@ -72,9 +72,10 @@ def pair_features(
 
     """
     method = "parts_features" if overlap else "part_features" if partial else "pair_features"
+    whole = not (partial or overlap)
     if not hasattr(extractor, method):
-        return tuple(mesh_features(extractor, mesh, max_vertices, record) for mesh in (source, target))
-    centred = [closed_for_features(mesh.centred()) for mesh in (source, target)]
+        return tuple(mesh_features(extractor, mesh, max_vertices, record, whole) for mesh in (source, target))
+    centred = [closed_for_features(mesh.centred(), whole) for mesh in (source, target)]
     capped = [capped_mesh(mesh, max_vertices, record) for mesh in centred]
     shown = [mesh if low is None else low for low, mesh in zip(capped, centred)]
     computed = getattr(extractor, method)(*shown)
@@ -84,22 +85,31 @@ def pair_features(
     )
 
 
-def closed_for_features(mesh: Mesh) -> Mesh:
-    """``mesh`` with its small holes closed (:func:`small_holes_closed`), its own vertices first.
+def closed_for_features(mesh: Mesh, whole: bool = True) -> Mesh:
+    """``mesh`` with its small holes closed (:func:`small_holes_closed`) when matched as a whole shape.
 
-    A scanner's small hole is not part of the surface the descriptors describe: the Laplacian
-    of the holed mesh has a boundary there that the closed training shapes never had. The
-    features are computed on the closed copy and its own vertices' rows kept (measured in
-    docs/partial.md, "Small holes are not cuts").
+    A scanner's small hole in a whole shape is not part of the surface the descriptors describe:
+    the Laplacian of the holed mesh has a boundary there that the closed training shapes never
+    had. Such a mesh's features are computed on the closed copy (its own vertices first) and its
+    own rows kept. Parts (``whole=False``) are left as they are: the partial recipe trains on
+    cuts that have such holes, and closing them did not help there (measured in docs/partial.md,
+    "Small holes are not cuts").
     """
-    return small_holes_closed(mesh)
+    return small_holes_closed(mesh) if whole else mesh
 
 
 def mesh_features(
-    extractor, mesh: Mesh, max_vertices: int | None = MAX_FEATURE_VERTICES, record: dict | None = None
+    extractor,
+    mesh: Mesh,
+    max_vertices: int | None = MAX_FEATURE_VERTICES,
+    record: dict | None = None,
+    whole: bool = True,
 ) -> np.ndarray:
-    """Features (V, D) of one mesh (centred) through ``extractor``, on at most ``max_vertices``."""
-    centred = closed_for_features(mesh.centred())
+    """Features (V, D) of one mesh (centred) through ``extractor``, on at most ``max_vertices``.
+
+    ``whole``: the mesh is matched as a whole shape, so its small holes are closed first.
+    """
+    centred = closed_for_features(mesh.centred(), whole)
     low = capped_mesh(centred, max_vertices, record)
     return on_full_mesh(extractor(centred if low is None else low), low, centred)[: mesh.n_verts]
 

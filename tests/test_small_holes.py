@@ -7,7 +7,7 @@ from conftest import composed, result_of
 
 from spidermatch.cli.match import run_match
 from spidermatch.data.synthetic import make_creature, random_rotation
-from spidermatch.feature_transfer import mesh_features
+from spidermatch.feature_transfer import mesh_features, pair_features
 from spidermatch.geometry.descriptors import WKSExtractor
 from spidermatch.geometry.io import save_mesh
 from spidermatch.geometry.mesh import (
@@ -131,3 +131,17 @@ def test_small_holes_are_closed_by_fans_for_the_features(creature):
     assert small_holes_closed(part) is part  # a cut is not closed
     wks = WKSExtractor()
     assert np.allclose(mesh_features(wks, scan, None), wks(closed.centred())[: scan.n_verts])
+
+
+def test_a_part_keeps_its_small_holes_for_the_features(creature):
+    half = plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.5, "half").mesh
+    rim = half.verts[np.unique(boundary_loops(half.faces)[0])]
+    from_rim = np.min(np.linalg.norm(half.verts[:, None] - rim[None], axis=2), axis=1)
+    inner = int(np.argmax(np.where(half.vertex_areas < np.median(half.vertex_areas), from_rim, -1.0)))
+    holed_half = punched(half, [inner], "half with a hole")
+    assert (topology(holed_half).small_holes, topology(holed_half).open_boundaries) == (1, 1)
+    wks = WKSExtractor()
+    as_part, _ = pair_features(wks, holed_half, creature, None, partial=True)
+    assert np.allclose(as_part, wks(holed_half.centred()))  # the hole stays open: the partial recipe saw such
+    as_whole, _ = pair_features(wks, holed_half, creature, None)
+    assert not np.allclose(as_whole, as_part)
