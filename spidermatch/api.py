@@ -341,7 +341,7 @@ def match(
         own vertices: a source's left-out vertices get -1 and lie outside
         ``source_overlap``, a target's are nobody's image; ``dense`` and ``details`` are in
         the pieces' indices. Precomputed features are given for the meshes as given. A mesh
-        given as a ``Mesh`` is taken as it is.
+        given as a ``Mesh`` is checked and repaired as a file is.
 
     Returns
     -------

@@ -650,9 +650,10 @@ def small_holes_closed(mesh: Mesh) -> Mesh:
 
 def topology(mesh: Mesh) -> Topology:
     """Genus, boundary loops and small holes of a validated (connected, manifold) mesh."""
-    edges, counts = np.unique(face_edges(mesh.faces).reshape(-1, 2), axis=0, return_counts=True)
-    euler = mesh.n_verts - len(edges) + mesh.n_faces
-    spans = loop_spans(mesh.verts, mesh.faces) / mesh.area
+    boundary, loop = boundary_loops(mesh.faces)
+    n_edges = (3 * mesh.n_faces + len(boundary)) // 2  # an inner edge has two faces, a boundary edge one
+    euler = mesh.n_verts - n_edges + mesh.n_faces
+    spans = spans_of_loops(mesh.verts, boundary, loop) / mesh.area
     small = spans < SMALL_HOLE_SHARE
     loops = len(spans)
     return Topology(

@@ -424,7 +424,7 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
 
 def whole_reason(source: Mesh, target: Mesh, top_x: Topology, top_y: Topology) -> str:
     """Why a pair is matched as two whole shapes: both the same, small holes tolerated (named)."""
-    if str(top_x) == str(top_y) and not top_x.small_holes:
+    if not (top_x.small_holes or top_y.small_holes):  # then the two topologies are equal
         return f"both meshes are {top_x}"
     return (
         f"{source.name} is {top_x} and {target.name} {top_y}: small holes (each spanning under "
