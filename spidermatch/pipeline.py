@@ -18,9 +18,10 @@ import numpy as np
 
 from spidermatch import defaults
 from spidermatch.dense.densify import densify
-from spidermatch.dense.maps import DenseMap
+from spidermatch.dense.maps import DenseMap, on_given_meshes
 from spidermatch.dense.settings import DenseSettings
 from spidermatch.eval.quality import assess
+from spidermatch.geometry.holes import ClosedCopy, closed_copy, real_vertices_only
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.partial import PairKind, covered_target, mean_edge_length
 from spidermatch.geometry.remesh import Decimated, decimate
@@ -119,6 +120,10 @@ class MatchSettings:
     partial : bool
         The source is a part of the target (:func:`spidermatch.geometry.partial.pair_kind`): its
         lengths are measured in the target's unit (sqrt of the target's area), not its own.
+    close_small_holes : bool
+        Match two whole shapes on copies with their small holes (a scanner's) closed by fans
+        (:mod:`spidermatch.geometry.holes`); every map is told on the meshes as given. Parts
+        (``partial``) are matched as they are.
 
     """
 
@@ -135,6 +140,7 @@ class MatchSettings:
     isolate_solver: bool = bool(defaults.option("solver/default", "isolate"))
     dense: DenseSettings | None = field(default_factory=DenseSettings)
     partial: bool = False
+    close_small_holes: bool = bool(defaults.option("curve/default", "close_small_holes"))
 
 
 @dataclass(eq=False)
@@ -164,6 +170,11 @@ class MatchResult:
         The verdict on a checked matching without ground truth (:func:`spidermatch.eval.quality.assess`).
     pair : PairKind or None
         How the pair was recognised, when the caller recognised it (the CLI and the API do).
+    closed : (ClosedCopy or None, ClosedCopy or None)
+        The copies of source and target with their small holes closed that were matched
+        (``MatchSettings.close_small_holes``), None for a mesh matched as given. ``source``,
+        ``target`` and the curve belong to them; ``to_full``, the pairs and the dense map name
+        only the given meshes' vertices.
 
     """
 
@@ -180,6 +191,7 @@ class MatchResult:
     dense: DenseMap | None = None
     quality: dict | None = None
     pair: PairKind | None = None
+    closed: tuple = (None, None)
 
     @property
     def dense_map(self) -> np.ndarray | None:
@@ -254,11 +266,14 @@ def prepare(
     target_features: np.ndarray,
     settings: MatchSettings,
     timings: dict,
+    closed: tuple | None = None,
 ) -> tuple[Decimated, Decimated, SpiderCurve, ProductGraph, IlpModel | LazyModel]:
     """Decimate, trace the curve, build the product graph, the costs and the ILP.
 
     For a strategy in ``LAZY_STRATEGIES`` the ILP is a :class:`LazyModel` (feature costs only;
-    columns are built by the strategy); otherwise the full :class:`IlpModel`.
+    columns are built by the strategy); otherwise the full :class:`IlpModel`. ``closed``: the
+    meshes' copies with small holes closed (:func:`closed_copies`, computed when not given);
+    a mesh that has one is matched on it, its decimated vertices mapped to given vertices only.
     """
     settings = strategy_resolved(settings)
     _check_features(source, source_features, "source")
@@ -266,6 +281,8 @@ def prepare(
     check_model_fits(
         (source.n_faces, target.n_faces), settings.resolution, settings.strategy, settings.target_augmented
     )
+    closed = closed_copies(source, target, settings) if closed is None else closed
+    source, target = (mesh if copy is None else copy.mesh for mesh, copy in zip((source, target), closed))
     source_scale = length_scale(target if settings.partial else source)
     logger.info(
         "lengths in %s: source area %.6g, target area %.6g",
@@ -276,6 +293,7 @@ def prepare(
     with _stage(timings, "decimate"):
         low_x = decimate(source.centred(), source_resolution(source, target, settings), settings.decimation)
         low_y = decimate(target.centred(), settings.resolution, settings.decimation)
+        low_x, low_y = (given_vertices_only(low, copy) for low, copy in zip((low_x, low_y), closed))
     with _stage(timings, "curve"):
         curve = spider_curve(
             low_x.mesh, settings.curve_augmented, settings.curve_seed, settings.curve_matching
@@ -314,6 +332,30 @@ def prepare(
         model.nnz,
     )
     return low_x, low_y, curve, graph, model
+
+
+def closed_copies(source: Mesh, target: Mesh, settings: MatchSettings) -> tuple:
+    """Copies of two whole shapes with their small holes closed (ClosedCopy or None each).
+
+    (None, None) for a part (``settings.partial``) or with ``settings.close_small_holes`` off.
+    """
+    if settings.partial or not settings.close_small_holes:
+        return None, None
+    closed = closed_copy(source), closed_copy(target)
+    for mesh, copy in zip((source, target), closed):
+        if copy is not None:
+            logger.info(
+                "%s: matched with its %d small hole(s) closed", mesh.name, copy.mesh.n_verts - copy.n_verts
+            )
+    return closed
+
+
+def given_vertices_only(low: Decimated, copy: ClosedCopy | None) -> Decimated:
+    """``low`` (a decimated closed copy) with each vertex mapped to a vertex of the given mesh."""
+    if copy is None:
+        return low
+    full = copy.mesh.centred()
+    return Decimated(low.mesh, real_vertices_only(low.to_full, low.mesh.verts, copy, full))
 
 
 def length_scale(mesh: Mesh) -> float:
@@ -364,8 +406,9 @@ def match(
     settings = strategy_resolved(settings or MatchSettings())
     check_settings(settings)
     timings: dict = {}
+    closed = closed_copies(source, target, settings)
     low_x, low_y, curve, graph, model = prepare(
-        source, target, source_features, target_features, settings, timings
+        source, target, source_features, target_features, settings, timings, closed
     )
     with _stage(timings, "solve"):
         solve = partial(solve_with_strategy, settings.strategy)
@@ -381,7 +424,7 @@ def match(
         solved.bound,
         solved.gap,
     )
-    result = MatchResult(low_x, low_y, curve, graph, solved, timings=timings)
+    result = MatchResult(low_x, low_y, curve, graph, solved, timings=timings, closed=closed)
     nonzeros = getattr(model, "nnz", None)  # a LazyModel (colgen) never builds the full matrix
     result.model_size = {"variables": model.n_vars, "rows": model.n_rows, "nonzeros": nonzeros}
     if solved.x is not None:
@@ -453,16 +496,22 @@ def add_dense_map(
     if result.low_map is None or result.check is None or not result.check.ok:
         return
     with _stage(result.timings, "dense"):
-        result.dense = densify(
-            source.centred(),
-            target.centred(),
+        matched = [mesh if copy is None else copy.mesh for mesh, copy in zip((source, target), result.closed)]
+        rows = [
+            rows if copy is None else np.vstack([rows, unit_rows(copy.rim_means(rows))])
+            for rows, copy in zip(features, result.closed)
+        ]
+        dense = densify(
+            matched[0].centred(),
+            matched[1].centred(),
             result.source,
             result.target,
             result.low_map,
-            *features,
+            *rows,
             settings,
             rest_scale=1.0 if partial else None,  # a part is measured in the target's unit
         )
+        result.dense = on_given_meshes(dense, *result.closed)
         if partial:
             whole = target.centred()
             covered = covered_target(whole, result.dense.points(whole), mean_edge_length(source))

@@ -108,6 +108,10 @@ def costs_and_curve_problems(cfg) -> list[str]:
     for key, group in (("target_augmented", cfg.costs), ("augmented", cfg.curve)):
         if not isinstance(group.get(key), bool):
             problems.append(f"{'costs' if group is cfg.costs else 'curve'}.{key}: must be true or false")
+    if not isinstance(cfg.curve.get("close_small_holes", True), bool):
+        problems.append(
+            f"curve.close_small_holes={show(cfg.curve.get('close_small_holes'))}: must be true or false"
+        )
     if not is_whole(cfg.curve.get("seed")):
         problems.append(f"curve.seed={show(cfg.curve.get('seed'))}: must be a whole number")
     if cfg.curve.get("decimation") not in DECIMATIONS:

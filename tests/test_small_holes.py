@@ -7,8 +7,11 @@ from conftest import composed, result_of
 
 from spidermatch.cli.match import run_match
 from spidermatch.data.synthetic import make_creature, random_rotation
+from spidermatch.dense.settings import DenseSettings
+from spidermatch.eval.errors import pointwise_geodesic_errors
 from spidermatch.feature_transfer import mesh_features, pair_features
 from spidermatch.geometry.descriptors import WKSExtractor
+from spidermatch.geometry.holes import closed_copy
 from spidermatch.geometry.io import save_mesh
 from spidermatch.geometry.mesh import (
     SMALL_HOLE_SHARE,
@@ -22,6 +25,8 @@ from spidermatch.geometry.mesh import (
     topology,
 )
 from spidermatch.geometry.partial import kept_part, pair_kind, plane_cut
+from spidermatch.geometry.surface import surface_positions
+from spidermatch.pipeline import MatchSettings, match
 
 
 @pytest.fixture(scope="module")
@@ -145,3 +150,57 @@ def test_a_part_keeps_its_small_holes_for_the_features(creature):
     assert np.allclose(as_part, wks(holed_half.centred()))  # the hole stays open: the partial recipe saw such
     as_whole, _ = pair_features(wks, holed_half, creature, None)
     assert not np.allclose(as_whole, as_part)
+
+
+def test_a_point_on_a_fan_moves_out_to_the_rim_of_the_given_mesh(creature):
+    scan = punched(creature, far_apart(creature, 3), "scan")
+    copy = closed_copy(scan)
+    assert copy.mesh.n_verts == scan.n_verts + 3 and closed_copy(creature) is None
+    fans = np.arange(scan.n_faces, copy.mesh.n_faces)
+    rng = np.random.default_rng(0)
+    bary = rng.dirichlet(np.ones(3), size=fans.size)
+    bary[0] = (0.0, 0.0, 1.0)  # the hole's centre itself
+    face, moved = copy.on_given_surface(np.r_[fans, 7], np.vstack([bary, [0.2, 0.3, 0.5]]))
+    assert (face < scan.n_faces).all() and np.allclose(moved.sum(axis=1), 1.0)
+    assert face[-1] == 7 and np.allclose(moved[-1], (0.2, 0.3, 0.5))  # a given face's point stays
+    start = surface_positions(copy.mesh, fans, bary)
+    centre = copy.mesh.verts[copy.mesh.faces[fans, 2]]
+    rim = copy.mesh.verts[copy.mesh.faces[fans, :2]]
+    landed = surface_positions(scan, face[:-1], moved[:-1])
+    assert np.allclose(landed[0], rim[0].mean(axis=0))
+    along = np.cross(rim[:, 1] - rim[:, 0], landed - rim[:, 0])
+    assert np.allclose(along, 0.0, atol=1e-12)  # on the fan's outer edge, a boundary edge of the scan
+    outwards = np.cross(start[1:] - centre[1:], landed[1:] - centre[1:])
+    assert np.allclose(outwards, 0.0, atol=1e-12)  # straight out from the centre
+    vertex = copy.given_vertices(copy.mesh.faces[fans, 2], face[:-1], moved[:-1])
+    assert (vertex < scan.n_verts).all() and np.isin(vertex, copy.mesh.faces[fans, :2]).all()
+    features = rng.normal(size=(scan.n_verts, 4))
+    rims = copy.mesh.faces[fans, 0][copy.mesh.faces[fans, 2] == scan.n_verts]
+    assert np.allclose(copy.rim_means(features)[0], features[rims].mean(axis=0))
+
+
+@pytest.mark.parametrize("close", [True, False])
+def test_two_scans_of_one_shape_with_other_holes_match_as_the_shape_itself(creature, close):
+    spots = far_apart(creature, 5)
+    scan_x, scan_y = punched(creature, spots[:2], "scan_x"), punched(creature, spots[2:], "scan_y")
+    from_creature = [creature.vertex_tree.query(scan.verts)[1] for scan in (scan_x, scan_y)]
+    truth = np.full(creature.n_verts, -1)
+    truth[from_creature[1]] = np.arange(scan_y.n_verts)
+    truth = truth[from_creature[0]]  # scan_y's vertex of each of scan_x's (-1: in a hole of scan_y)
+    features = [np.c_[scan.centred().verts, np.ones(scan.n_verts)] for scan in (scan_x, scan_y)]
+    settings = MatchSettings(resolution=150, close_small_holes=close, dense=DenseSettings(inverse=True))
+    result = match(scan_x, scan_y, *features, settings)
+    assert result.solve.status == "optimal"
+    assert (result.closed[0] is not None) == close and (result.closed[1] is not None) == close
+    dense = result.dense
+    assert dense.vertex.shape == (scan_x.n_verts,) and dense.vertex.max() < scan_y.n_verts
+    assert dense.face.max() < scan_y.n_faces and dense.inverse.vertex.shape == (scan_y.n_verts,)
+    assert dense.inverse.vertex.max() < scan_x.n_verts and dense.inverse.face.max() < scan_x.n_faces
+    assert result.full_pairs[:, 0].max() < scan_x.n_verts and result.full_pairs[:, 1].max() < scan_y.n_verts
+    seen = truth >= 0
+    error = pointwise_geodesic_errors(scan_y, dense.vertex[seen], truth[seen]).mean()
+    exact = np.mean(dense.vertex[seen] == truth[seen])
+    if close:  # measured 0.0003 and 98 % exact; with the holes open 0.0028 and 91 %
+        assert error < 0.001 and exact > 0.95
+    else:
+        assert error > 0.001 and exact < 0.95

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from spidermatch.geometry.holes import ClosedCopy
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.surface import (
     closest_triangle_points,
@@ -107,3 +108,30 @@ def closest_on_image_surface(
     face, bary = closest_triangle_points(images, source.faces, points)
     closest = np.einsum("nk,nkd->nd", bary, images[source.faces[face]])
     return face, bary, np.linalg.norm(closest - points, axis=1) / np.sqrt(target.area)
+
+
+def on_given_meshes(dense: DenseMap, source: ClosedCopy | None, target: ClosedCopy | None) -> DenseMap:
+    """``dense``, made between closed copies of meshes with small holes, told on the meshes as given.
+
+    Rows of the source's hole centres are dropped, so is the target's; image points on a fan
+    face move to the hole's rim (:meth:`ClosedCopy.on_given_surface`), and no vertex named is a
+    hole centre. A ``None`` side was matched as given.
+    """
+    if target is not None:
+        face, bary = target.on_given_surface(dense.face, dense.bary)
+        vertex = target.given_vertices(dense.vertex, face, bary)
+        covered = None if dense.covered is None else dense.covered[: target.n_verts]
+        dense = replace(dense, vertex=vertex, face=face, bary=bary, covered=covered)
+    if source is not None:
+        n = source.n_verts
+        dense = replace(dense, vertex=dense.vertex[:n], face=dense.face[:n], bary=dense.bary[:n])
+    inverse = dense.inverse
+    if inverse is None:
+        return dense
+    if target is not None:
+        n = target.n_verts
+        inverse = InverseMap(inverse.vertex[:n], inverse.face[:n], inverse.bary[:n], inverse.gap[:n])
+    if source is not None:
+        face, bary = source.on_given_surface(inverse.face, inverse.bary)
+        inverse = InverseMap(source.given_vertices(inverse.vertex, face, bary), face, bary, inverse.gap)
+    return replace(dense, inverse=inverse)
