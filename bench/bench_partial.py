@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_scaling import format_row, write_rows
-from bench_user_copies import scan_copy
+from bench_user_copies import HOLE_RINGS, holed_copy, scan_copy
 from scipy.spatial import cKDTree
 
 import spidermatch
@@ -48,8 +48,9 @@ from spidermatch.data.datasets import Shape, ShapeFolder, read_pairs_file
 from spidermatch.data.synthetic import random_rotation, rotation_angle
 from spidermatch.eval.errors import pointwise_geodesic_errors
 from spidermatch.geometry.io import load_mesh
-from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.mesh import Mesh, topology
 from spidermatch.geometry.partial import kept_part
+from spidermatch.geometry.remesh import nearest_vertices
 
 COLUMNS = (
     "part", "target", "kept_area", "mode", "status", "gap", "solve_s", "total_s", "dense_error", "iou",
@@ -101,12 +102,16 @@ def part_against_whole(
     target_name: str,
     turn_seed: int | None,
     scan_seed: int | None = None,
+    holes_seed: int | None = None,
 ) -> PartAgainstWhole:
     """Load a part and a whole target; with ``turn_seed``, the part turned and moved (:func:`turned_copy`);
-    with ``scan_seed``, both as dense noisy scans (:func:`scanned_part`)."""
+    with ``scan_seed``, both as dense noisy scans (:func:`scanned_part`); with ``holes_seed``, the
+    target with small holes (:func:`holed_target`)."""
     part, _, whole, position, kept_area = load_part(parts, folder, part_name)
     target = folder.load(target_name)
     row = {"part": part_name, "target": target_name, "kept_area": kept_area}
+    if holes_seed is not None:
+        target = holed_target(target, np.random.default_rng([holes_seed, zlib.crc32(target_name.encode())]))
     scored = None
     if scan_seed is not None:
         names = (part_name, target_name)
@@ -120,6 +125,26 @@ def part_against_whole(
     if turn_seed is not None:
         part, row["turned_degrees"] = turned_copy(part, turn_seed)
     return PartAgainstWhole(part, target, position[whole.corr[kept_rows]], kept_rows, row, scored)
+
+
+TARGET_HOLES = 6
+"""Small holes a ``--target-holes`` target gets (two rings of faces each, as bench_user_copies cuts)."""
+
+
+def holed_target(target: Shape, rng: np.random.Generator) -> Shape:
+    """``target`` with :data:`TARGET_HOLES` small holes where a scanner saw nothing; each reference
+    point at its nearest vertex left.
+
+    Centres are drawn again until every hole is small (under ``SMALL_HOLE_SHARE`` of the area; two
+    rings round a fingertip cut the finger off, and neighbouring holes may join): a larger loop
+    would make the target a part, which this copy is not meant to be.
+    """
+    mesh = target.mesh
+    for _ in range(100):
+        holed = holed_copy(mesh, rng.choice(mesh.n_verts, size=TARGET_HOLES, replace=False), HOLE_RINGS)
+        if topology(holed).open_boundaries == 0:
+            return Shape(target.name, holed, nearest_vertices(holed.verts, mesh.verts[target.corr]))
+    raise RuntimeError(f"{target.name}: no {TARGET_HOLES} small holes found in 100 draws")
 
 
 SCAN_SUBDIVISIONS = 2
@@ -157,7 +182,9 @@ def scanned_part(
 
 def run_pair(part_name: str, parts: Path, folder: ShapeFolder, target_name: str, args, extractor) -> dict:
     """Match one part to one whole shape and score it."""
-    run = part_against_whole(parts, folder, part_name, target_name, args.turn_parts, args.scan_copies)
+    run = part_against_whole(
+        parts, folder, part_name, target_name, args.turn_parts, args.scan_copies, args.target_holes
+    )
     part, target, kept_rows, row = run.part, run.target, run.kept_rows, run.row
     result = _timed_match(
         part, target.mesh, args, extractor, "auto" if args.mode == "partial" else "off", row
@@ -445,6 +472,14 @@ def main(argv: list[str] | None = None) -> int:
         type=float,
         default=0.3,
         help="--mode both: only pairs of parts of which each truly shares at least this share of its area",
+    )
+    parser.add_argument(
+        "--target-holes",
+        type=int,
+        default=None,
+        metavar="SEED",
+        help=f"the whole target with {TARGET_HOLES} small holes (two rings of faces each, seeded by SEED "
+        "and its name), as a scanner leaves them; each reference point at its nearest vertex left",
     )
     parser.add_argument("--faces", type=int, default=1000)
     parser.add_argument("--time-limit", type=float, default=120.0)

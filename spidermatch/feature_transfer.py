@@ -7,8 +7,9 @@ more vertices than the cap is therefore decimated to about the cap, its features
 computed there, and each full-resolution vertex gets the inverse-distance-weighted mean of
 its nearest decimated vertices' features (rows re-normalised). ``bench/bench_user_copies.py``
 measures what this costs in accuracy. A mesh matched as a whole shape that has small holes (a
-scanner's, see :data:`spidermatch.geometry.mesh.SMALL_HOLE_SHARE`) gets its features on a copy
-with those holes closed by fans (:func:`closed_for_features`).
+scanner's, see :data:`spidermatch.geometry.mesh.SMALL_HOLE_SHARE`), or a part's target closed but
+for such holes, gets its features on a copy with those holes closed by fans
+(:func:`closed_for_features`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from spidermatch import defaults
+from spidermatch.geometry.holes import closed_but_for_small_holes
 from spidermatch.geometry.mesh import Mesh, small_holes_closed
 from spidermatch.geometry.remesh import decimate
 from spidermatch.model.costs import unit_rows
@@ -73,9 +75,15 @@ def pair_features(
     """
     method = "parts_features" if overlap else "part_features" if partial else "pair_features"
     whole = not (partial or overlap)
+    wholes = (whole, whole or (partial and not overlap and closed_but_for_small_holes(target)))
     if not hasattr(extractor, method):
-        return tuple(mesh_features(extractor, mesh, max_vertices, record, whole) for mesh in (source, target))
-    centred = [closed_for_features(mesh.centred(), whole) for mesh in (source, target)]
+        return tuple(
+            mesh_features(extractor, mesh, max_vertices, record, is_whole)
+            for mesh, is_whole in zip((source, target), wholes)
+        )
+    centred = [
+        closed_for_features(mesh.centred(), is_whole) for mesh, is_whole in zip((source, target), wholes)
+    ]
     capped = [capped_mesh(mesh, max_vertices, record) for mesh in centred]
     shown = [mesh if low is None else low for low, mesh in zip(capped, centred)]
     computed = getattr(extractor, method)(*shown)
@@ -86,14 +94,14 @@ def pair_features(
 
 
 def closed_for_features(mesh: Mesh, whole: bool = True) -> Mesh:
-    """``mesh`` with its small holes closed (:func:`small_holes_closed`) when matched as a whole shape.
+    """``mesh`` with its small holes closed (:func:`small_holes_closed`) when it is a whole shape.
 
     A scanner's small hole in a whole shape is not part of the surface the descriptors describe:
     the Laplacian of the holed mesh has a boundary there that the closed training shapes never
     had. Such a mesh's features are computed on the closed copy (its own vertices first) and its
-    own rows kept. Parts (``whole=False``) are left as they are: the partial recipe trains on
-    cuts that have such holes, and closing them did not help there (measured in docs/partial.md,
-    "Small holes are not cuts").
+    own rows kept; so are those of a part's whole target. Parts (``whole=False``) are left as
+    they are: the partial recipe trains on cuts that have such holes, and closing them did not
+    help there (measured in docs/partial.md, "Small holes are not cuts").
     """
     return small_holes_closed(mesh) if whole else mesh
 

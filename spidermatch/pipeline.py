@@ -21,7 +21,7 @@ from spidermatch.dense.densify import densify
 from spidermatch.dense.maps import DenseMap, on_given_meshes
 from spidermatch.dense.settings import DenseSettings
 from spidermatch.eval.quality import assess
-from spidermatch.geometry.holes import ClosedCopy, closed_copy, real_vertices_only
+from spidermatch.geometry.holes import ClosedCopy, closed_but_for_small_holes, closed_copy, real_vertices_only
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.partial import PairKind, covered_target, mean_edge_length
 from spidermatch.geometry.remesh import Decimated, decimate
@@ -121,9 +121,9 @@ class MatchSettings:
         The source is a part of the target (:func:`spidermatch.geometry.partial.pair_kind`): its
         lengths are measured in the target's unit (sqrt of the target's area), not its own.
     close_small_holes : bool
-        Match two whole shapes on copies with their small holes (a scanner's) closed by fans
-        (:mod:`spidermatch.geometry.holes`); every map is told on the meshes as given. Parts
-        (``partial``) are matched as they are.
+        Match whole shapes on copies with their small holes (a scanner's) closed by fans
+        (:mod:`spidermatch.geometry.holes`); every map is told on the meshes as given. A part
+        (``partial``) is matched as it is, its whole target closed.
 
     """
 
@@ -335,13 +335,18 @@ def prepare(
 
 
 def closed_copies(source: Mesh, target: Mesh, settings: MatchSettings) -> tuple:
-    """Copies of two whole shapes with their small holes closed (ClosedCopy or None each).
+    """Copies of source and target with their small holes closed (ClosedCopy or None each).
 
-    (None, None) for a part (``settings.partial``) or with ``settings.close_small_holes`` off.
+    A part (``settings.partial``) keeps its holes; so does its target unless that is closed
+    but for small holes (a whole shape, not another part). (None, None) with
+    ``settings.close_small_holes`` off.
     """
-    if settings.partial or not settings.close_small_holes:
+    if not settings.close_small_holes:
         return None, None
-    closed = closed_copy(source), closed_copy(target)
+    if settings.partial:
+        closed = None, closed_copy(target) if closed_but_for_small_holes(target) else None
+    else:
+        closed = closed_copy(source), closed_copy(target)
     for mesh, copy in zip((source, target), closed):
         if copy is not None:
             logger.info(

@@ -204,3 +204,24 @@ def test_two_scans_of_one_shape_with_other_holes_match_as_the_shape_itself(creat
         assert error < 0.001 and exact > 0.95
     else:
         assert error > 0.001 and exact < 0.95
+
+
+def test_a_part_against_a_scan_with_small_holes_is_matched_to_the_scan_closed(creature):
+    scan = punched(creature, far_apart(creature, 3), "scan")
+    part = plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.5, "half").mesh
+    assert pair_kind(part, scan).mode == "partial"
+    truth = np.full(creature.n_verts, -1)
+    truth[creature.vertex_tree.query(scan.verts)[1]] = np.arange(scan.n_verts)
+    truth = truth[creature.vertex_tree.query(part.verts)[1]]  # the scan's vertex of each part vertex
+    features = [np.c_[mesh.verts - scan.verts.mean(axis=0), np.ones(mesh.n_verts)] for mesh in (part, scan)]
+    result = match(part, scan, *features, MatchSettings(resolution=300, partial=True))
+    assert result.solve.status == "optimal"
+    assert result.closed[0] is None and result.closed[1].mesh.n_verts == scan.n_verts + 3
+    dense = result.dense
+    assert dense.vertex.max() < scan.n_verts and dense.face.max() < scan.n_faces
+    assert dense.covered.shape == (scan.n_verts,)
+    seen = truth >= 0
+    assert pointwise_geodesic_errors(scan, dense.vertex[seen], truth[seen]).mean() < 0.01
+    wks = WKSExtractor()
+    _, target_rows = pair_features(wks, part, scan, None, partial=True)
+    assert np.allclose(target_rows, wks(small_holes_closed(scan.centred()))[: scan.n_verts])

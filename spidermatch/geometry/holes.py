@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from spidermatch.geometry.mesh import Mesh, small_holes_closed
+from spidermatch.geometry.mesh import Mesh, small_holes_closed, topology
 
 CORNERS_OF_EDGE_SLOT = np.array([[1, 2], [2, 0], [0, 1]])
 """Corners (within its face) of a face's directed edge in slot 0, 1, 2 (see :func:`_rim_faces`)."""
@@ -88,6 +88,11 @@ class ClosedCopy:
         corner = np.argmax(bary[centre], axis=1)
         vertex[centre] = self.mesh.faces[face[centre], corner]
         return vertex
+
+
+def closed_but_for_small_holes(mesh: Mesh) -> bool:
+    """Whether ``mesh`` (validated) is a whole surface: no boundary loop but small holes."""
+    return topology(mesh).open_boundaries == 0
 
 
 def closed_copy(mesh: Mesh) -> ClosedCopy | None:
