@@ -225,3 +225,20 @@ def test_a_part_against_a_scan_with_small_holes_is_matched_to_the_scan_closed(cr
     wks = WKSExtractor()
     _, target_rows = pair_features(wks, part, scan, None, partial=True)
     assert np.allclose(target_rows, wks(small_holes_closed(scan.centred()))[: scan.n_verts])
+
+
+def test_a_cut_part_against_a_scan_with_one_larger_hole_is_still_a_part(creature):
+    ring = np.zeros(creature.n_verts, dtype=bool)
+    ring[far_apart(creature, 1)] = True
+    for _ in range(4):  # a hole of five rings: spanning over 1 % of the area, so no longer a small one
+        ring[creature.faces[ring[creature.faces].any(axis=1)]] = True
+    scan = kept_part(creature, ~ring[creature.faces].any(axis=1), "scan.off", "hole").mesh
+    part = plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.5, "half.off").mesh
+    top_scan, top_part = topology(scan), topology(part)
+    assert top_scan.open_boundaries == top_part.open_boundaries == 1
+    assert top_part.widest_span > 2 * top_scan.widest_span > 2 * SMALL_HOLE_SHARE
+    kind = pair_kind(part, scan)
+    assert kind.mode == "partial" and "a cut against a hole" in kind.reason and kind.caution
+    assert pair_kind(scan, scan).mode == "whole"  # the same hole on both sides: two whole shapes
+    with pytest.raises(MeshError, match="partial=auto"):
+        pair_kind(part, scan, partial=False)
