@@ -103,6 +103,7 @@ def part_against_whole(
     turn_seed: int | None,
     scan_seed: int | None = None,
     holes_seed: int | None = None,
+    any_hole_size: bool = False,
 ) -> PartAgainstWhole:
     """Load a part and a whole target; with ``turn_seed``, the part turned and moved (:func:`turned_copy`);
     with ``scan_seed``, both as dense noisy scans (:func:`scanned_part`); with ``holes_seed``, the
@@ -111,7 +112,8 @@ def part_against_whole(
     target = folder.load(target_name)
     row = {"part": part_name, "target": target_name, "kept_area": kept_area}
     if holes_seed is not None:
-        target = holed_target(target, np.random.default_rng([holes_seed, zlib.crc32(target_name.encode())]))
+        rng = np.random.default_rng([holes_seed, zlib.crc32(target_name.encode())])
+        target = holed_target(target, rng, any_hole_size)
     scored = None
     if scan_seed is not None:
         names = (part_name, target_name)
@@ -131,18 +133,19 @@ TARGET_HOLES = 6
 """Small holes a ``--target-holes`` target gets (two rings of faces each, as bench_user_copies cuts)."""
 
 
-def holed_target(target: Shape, rng: np.random.Generator) -> Shape:
+def holed_target(target: Shape, rng: np.random.Generator, any_size: bool = False) -> Shape:
     """``target`` with :data:`TARGET_HOLES` small holes where a scanner saw nothing; each reference
     point at its nearest vertex left.
 
     Centres are drawn again until every hole is small (under ``SMALL_HOLE_SHARE`` of the area; two
     rings round a fingertip cut the finger off, and neighbouring holes may join): a larger loop
-    would make the target a part, which this copy is not meant to be.
+    would make the target a part, which this copy is not meant to be. ``any_size`` keeps the
+    first draw, larger loops and all.
     """
     mesh = target.mesh
     for _ in range(100):
         holed = holed_copy(mesh, rng.choice(mesh.n_verts, size=TARGET_HOLES, replace=False), HOLE_RINGS)
-        if topology(holed).open_boundaries == 0:
+        if any_size or topology(holed).open_boundaries == 0:
             return Shape(target.name, holed, nearest_vertices(holed.verts, mesh.verts[target.corr]))
     raise RuntimeError(f"{target.name}: no {TARGET_HOLES} small holes found in 100 draws")
 
@@ -183,7 +186,14 @@ def scanned_part(
 def run_pair(part_name: str, parts: Path, folder: ShapeFolder, target_name: str, args, extractor) -> dict:
     """Match one part to one whole shape and score it."""
     run = part_against_whole(
-        parts, folder, part_name, target_name, args.turn_parts, args.scan_copies, args.target_holes
+        parts,
+        folder,
+        part_name,
+        target_name,
+        args.turn_parts,
+        args.scan_copies,
+        args.target_holes,
+        args.any_hole_size,
     )
     part, target, kept_rows, row = run.part, run.target, run.kept_rows, run.row
     result = _timed_match(
@@ -480,6 +490,11 @@ def main(argv: list[str] | None = None) -> int:
         metavar="SEED",
         help=f"the whole target with {TARGET_HOLES} small holes (two rings of faces each, seeded by SEED "
         "and its name), as a scanner leaves them; each reference point at its nearest vertex left",
+    )
+    parser.add_argument(
+        "--any-hole-size",
+        action="store_true",
+        help="--target-holes: keep the first draw of centres, even where a hole spans over 1 %% of the area",
     )
     parser.add_argument("--faces", type=int, default=1000)
     parser.add_argument("--time-limit", type=float, default=120.0)
