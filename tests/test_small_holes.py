@@ -15,9 +15,11 @@ from spidermatch.geometry.holes import closed_copy
 from spidermatch.geometry.io import save_mesh
 from spidermatch.geometry.mesh import (
     SMALL_HOLE_SHARE,
+    TINY_HOLE_SHARE,
     Mesh,
     MeshError,
     boundary_loops,
+    loop_alignments,
     loop_spans,
     make_mesh,
     signed_volume,
@@ -242,3 +244,19 @@ def test_a_cut_part_against_a_scan_with_one_larger_hole_is_still_a_part(creature
     assert pair_kind(scan, scan).mode == "whole"  # the same hole on both sides: two whole shapes
     with pytest.raises(MeshError, match="partial=auto"):
         pair_kind(part, scan, partial=False)
+
+
+def test_a_limb_cut_across_is_a_cut_however_small_its_loop(creature):
+    capsule = trimesh.creation.capsule(height=10.0, radius=0.15, count=[24, 24])  # a long thin limb
+    verts, faces = trimesh.remesh.subdivide_to_size(capsule.vertices, capsule.faces, max_edge=0.3)
+    limb = Mesh(*_compact(verts, faces), "limb")
+    cut = kept_part(limb, limb.verts[limb.faces].mean(axis=1)[:, 2] < 4.0, "limb without its tip", "cut").mesh
+    (span,) = loop_spans(cut.verts, cut.faces) / cut.area
+    assert TINY_HOLE_SHARE < span < SMALL_HOLE_SHARE  # as small as a scanner's hole
+    edges, loop = boundary_loops(cut.faces)
+    assert loop_alignments(cut.verts, cut.faces, edges, loop)[0] < 0.1  # but the surface runs across it
+    assert (topology(cut).open_boundaries, topology(cut).small_holes) == (1, 0)
+    assert small_holes_closed(cut) is cut
+    scan = punched(creature, far_apart(creature, 3), "scan")  # holes in a surface stay small holes
+    edges, loop = boundary_loops(scan.faces)
+    assert (loop_alignments(scan.verts, scan.faces, edges, loop) > 0.45).all()

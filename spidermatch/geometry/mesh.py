@@ -526,7 +526,8 @@ def mean_incident_edge_length(mesh: Mesh) -> np.ndarray:
 
 
 SMALL_HOLE_SHARE = 0.01
-"""A boundary loop that spans less than this share of its mesh's area is a small hole.
+"""A boundary loop that spans less than this share of its mesh's area is a small hole (see also
+:data:`HOLE_ALIGNMENT`).
 
 A raw scan of a whole surface has such holes where the scanner saw nothing (an armpit, the
 top of the head, a patch the repair dropped): they do not make it a part. The area a loop
@@ -535,7 +536,7 @@ body: a hole of two rings of faces 0.01-0.75 %, a wrist about 0.1 %, a cut at th
 single view's silhouette 50-65 %). Measured on FAUST_r pairs (docs/partial.md, "Small holes are
 not cuts"): a source with one hole spanning up to 1.6 % matches as a whole shape within 0.002 of
 the partial mode's error, in half its time. A limb cut off where it is thin (a hand, a foot)
-also leaves a small loop; such a source is matched as a whole shape too.
+also leaves a small loop, but across a tube: such a loop is a cut (:data:`HOLE_ALIGNMENT`).
 """
 
 
@@ -626,15 +627,69 @@ def spans_of_loops(verts: np.ndarray, edges: np.ndarray, loop: np.ndarray) -> np
     return 0.5 * np.linalg.norm(vector, axis=1)
 
 
+TINY_HOLE_SHARE = 0.0005
+"""A boundary loop spanning less than this share of its mesh's area is a small hole whatever its shape
+(what it leaves out is too small to change a match: a fingertip, a pore of the scan)."""
+
+HOLE_ALIGNMENT = 0.45
+"""A loop spanning under :data:`SMALL_HOLE_SHARE` is a small hole only if the surface round it runs
+along the cap that would close it: the mean |cos| of the angle between the cap's direction (its
+vector area) and the surface normals at the loop's vertices is at least this. A hole in a surface
+(a scanner's) has the surface tangent to its cap; a limb cut across (the feet cut off by the floor,
+a hand off at the wrist) has it perpendicular. Measured (docs/partial.md, "Small holes are not
+cuts"): 2-ring holes of FAUST_r and TOSCA copies spanning 0.05-0.75 % have 0.47-0.97, the legs of a
+FAUST_r body cut by a horizontal plane 0.16-0.44, a hand or forearm cut off 0.37-0.43."""
+
+
+def loop_alignments(verts: np.ndarray, faces: np.ndarray, edges: np.ndarray, loop: np.ndarray) -> np.ndarray:
+    """Mean |cos| between each boundary loop's cap direction and the surface normals on it, shape (L,).
+
+    ``edges`` and ``loop`` as :func:`boundary_loops` returns them; the normals are the
+    area-weighted normals of the vertices each loop's edges start from.
+    """
+    if not len(edges):
+        return np.zeros(0)
+    points = np.asarray(verts, dtype=np.float64)
+    points = points - points.mean(axis=0)
+    cross = np.cross(points[edges[:, 0]], points[edges[:, 1]])
+    cap = np.stack([np.bincount(loop, cross[:, k]) for k in range(3)], axis=1)
+    cap /= np.maximum(np.linalg.norm(cap, axis=1, keepdims=True), np.finfo(float).tiny)
+    a, b, c = (points[faces[:, k]] for k in range(3))
+    face_normals = np.cross(b - a, c - a)  # twice the area, along the normal
+    normals = np.zeros_like(points)
+    for k in range(3):
+        np.add.at(normals, faces[:, k], face_normals)
+    rim = normals[edges[:, 0]]
+    rim /= np.maximum(np.linalg.norm(rim, axis=1, keepdims=True), np.finfo(float).tiny)
+    cosines = np.abs(np.einsum("ij,ij->i", rim, cap[loop]))
+    return np.bincount(loop, cosines) / np.bincount(loop)
+
+
+def small_hole_loops(
+    verts: np.ndarray, faces: np.ndarray, edges: np.ndarray, loop: np.ndarray, area: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which boundary loops are small holes (L,) bool, and each loop's span as a share of ``area`` (L,).
+
+    A small hole spans under :data:`SMALL_HOLE_SHARE` and either under :data:`TINY_HOLE_SHARE` or
+    with the surface running along its cap (:data:`HOLE_ALIGNMENT`): a limb cut across is a cut.
+    """
+    spans = spans_of_loops(verts, edges, loop) / area
+    small = spans < SMALL_HOLE_SHARE
+    unsure = np.flatnonzero(small & (spans >= TINY_HOLE_SHARE))
+    if unsure.size:
+        small[unsure] = loop_alignments(verts, faces, edges, loop)[unsure] >= HOLE_ALIGNMENT
+    return small, spans
+
+
 def small_holes_closed(mesh: Mesh) -> Mesh:
-    """``mesh`` with each small hole (:data:`SMALL_HOLE_SHARE`) closed by a fan to its loop's centroid.
+    """``mesh`` with each small hole (:func:`small_hole_loops`) closed by a fan to its loop's centroid.
 
     The mesh's vertices come first, then one vertex per closed hole (V + H, 3); the fan's faces
     follow the surface's orientation. A mesh without small holes is returned as it is.
     """
     edges, loop = boundary_loops(mesh.faces)
-    spans = spans_of_loops(mesh.verts, edges, loop) / mesh.area
-    small = np.flatnonzero(spans < SMALL_HOLE_SHARE)
+    is_small, spans = small_hole_loops(mesh.verts, mesh.faces, edges, loop, mesh.area)
+    small = np.flatnonzero(is_small)
     if not small.size:
         return mesh
     centre = np.full(len(spans), -1, dtype=np.int64)
@@ -653,8 +708,7 @@ def topology(mesh: Mesh) -> Topology:
     boundary, loop = boundary_loops(mesh.faces)
     n_edges = (3 * mesh.n_faces + len(boundary)) // 2  # an inner edge has two faces, a boundary edge one
     euler = mesh.n_verts - n_edges + mesh.n_faces
-    spans = spans_of_loops(mesh.verts, boundary, loop) / mesh.area
-    small = spans < SMALL_HOLE_SHARE
+    small, spans = small_hole_loops(mesh.verts, mesh.faces, boundary, loop, mesh.area)
     loops = len(spans)
     return Topology(
         int(euler),

@@ -463,7 +463,8 @@ def whole_reason(source: Mesh, target: Mesh, top_x: Topology, top_y: Topology) -
         return f"both meshes are {top_x}"
     return (
         f"{source.name} is {top_x} and {target.name} {top_y}: small holes (each spanning under "
-        f"{SMALL_HOLE_SHARE:.1%} of its mesh's area) are where a scanner saw nothing, not cuts, so both are "
+        f"{SMALL_HOLE_SHARE:.1%} of its mesh's area, in the surface, not across a limb) are where a scanner "
+        "saw nothing, not cuts, so both are "
         "matched as whole shapes"
     )
 
