@@ -8,7 +8,8 @@ hold it. A whole shape is therefore matched on a copy with each small hole close
 its loop's centroid (:class:`ClosedCopy`), and everything the match says is told back on the
 mesh as given: a point on a fan face moves out from the centre to the hole's rim (radially,
 onto the fan face's outer edge, which is a boundary edge of one given face), a fan's centre
-vertex is never named. docs/matching.md, "Scans with small holes", has the measurements.
+vertex is never named. docs/partial.md, "Whole shapes are matched with their small holes closed",
+has the measurements.
 """
 
 from __future__ import annotations
