@@ -21,7 +21,12 @@ from spidermatch.dense.densify import densify
 from spidermatch.dense.maps import DenseMap, on_given_meshes
 from spidermatch.dense.settings import DenseSettings
 from spidermatch.eval.quality import assess
-from spidermatch.geometry.holes import ClosedCopy, closed_but_for_small_holes, closed_copy, real_vertices_only
+from spidermatch.geometry.holes import (
+    ClosedCopy,
+    closed_but_for_small_holes,
+    closed_copy,
+    nearest_given_vertices,
+)
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.partial import PairKind, covered_target, mean_edge_length
 from spidermatch.geometry.remesh import Decimated, decimate
@@ -282,7 +287,7 @@ def prepare(
         (source.n_faces, target.n_faces), settings.resolution, settings.strategy, settings.target_augmented
     )
     closed = closed_copies(source, target, settings) if closed is None else closed
-    source, target = (mesh if copy is None else copy.mesh for mesh, copy in zip((source, target), closed))
+    source, target = matched_meshes((source, target), closed)
     source_scale = length_scale(target if settings.partial else source)
     logger.info(
         "lengths in %s: source area %.6g, target area %.6g",
@@ -355,12 +360,17 @@ def closed_copies(source: Mesh, target: Mesh, settings: MatchSettings) -> tuple:
     return closed
 
 
+def matched_meshes(meshes: tuple, closed: tuple) -> tuple:
+    """The meshes a match runs on: each given mesh, or its copy with small holes closed."""
+    return tuple(mesh if copy is None else copy.mesh for mesh, copy in zip(meshes, closed))
+
+
 def given_vertices_only(low: Decimated, copy: ClosedCopy | None) -> Decimated:
     """``low`` (a decimated closed copy) with each vertex mapped to a vertex of the given mesh."""
     if copy is None:
         return low
     full = copy.mesh.centred()
-    return Decimated(low.mesh, real_vertices_only(low.to_full, low.mesh.verts, copy, full))
+    return Decimated(low.mesh, nearest_given_vertices(low.to_full, low.mesh.verts, copy, full))
 
 
 def length_scale(mesh: Mesh) -> float:
@@ -501,8 +511,8 @@ def add_dense_map(
     if result.low_map is None or result.check is None or not result.check.ok:
         return
     with _stage(result.timings, "dense"):
-        matched = [mesh if copy is None else copy.mesh for mesh, copy in zip((source, target), result.closed)]
-        rows = [
+        matched = matched_meshes((source, target), result.closed)
+        matched_features = [
             rows if copy is None else np.vstack([rows, unit_rows(copy.rim_means(rows))])
             for rows, copy in zip(features, result.closed)
         ]
@@ -512,7 +522,7 @@ def add_dense_map(
             result.source,
             result.target,
             result.low_map,
-            *rows,
+            *matched_features,
             settings,
             rest_scale=1.0 if partial else None,  # a part is measured in the target's unit
         )

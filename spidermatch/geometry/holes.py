@@ -121,7 +121,7 @@ def _rim_faces(faces: np.ndarray, start: np.ndarray, end: np.ndarray) -> tuple[n
     return (found // 3).astype(np.int64), corners[:, ::-1].astype(np.int64)
 
 
-def real_vertices_only(
+def nearest_given_vertices(
     to_full: np.ndarray, low_verts: np.ndarray, copy: ClosedCopy, full: Mesh
 ) -> np.ndarray:
     """``to_full`` (V_low,) of a decimated copy with each hole centre replaced by the nearest given vertex.

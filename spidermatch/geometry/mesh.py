@@ -618,13 +618,17 @@ def loop_spans(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def spans_of_loops(verts: np.ndarray, edges: np.ndarray, loop: np.ndarray) -> np.ndarray:
     """:func:`loop_spans` of the loops :func:`boundary_loops` returned, shape (L,)."""
+    return np.linalg.norm(loop_vector_areas(verts, edges, loop), axis=1)
+
+
+def loop_vector_areas(verts: np.ndarray, edges: np.ndarray, loop: np.ndarray) -> np.ndarray:
+    """Vector area of each boundary loop, half the sum of p_a x p_b over its edges, shape (L, 3)."""
     if not len(edges):
-        return np.zeros(0)
+        return np.zeros((0, 3))
     points = np.asarray(verts, dtype=np.float64)
     points = points - points.mean(axis=0)  # a closed loop's vector area does not depend on it
     cross = np.cross(points[edges[:, 0]], points[edges[:, 1]])
-    vector = np.stack([np.bincount(loop, cross[:, k]) for k in range(3)], axis=1)
-    return 0.5 * np.linalg.norm(vector, axis=1)
+    return 0.5 * np.stack([np.bincount(loop, cross[:, k]) for k in range(3)], axis=1)
 
 
 TINY_HOLE_SHARE = 0.0005
@@ -649,11 +653,9 @@ def loop_alignments(verts: np.ndarray, faces: np.ndarray, edges: np.ndarray, loo
     """
     if not len(edges):
         return np.zeros(0)
-    points = np.asarray(verts, dtype=np.float64)
-    points = points - points.mean(axis=0)
-    cross = np.cross(points[edges[:, 0]], points[edges[:, 1]])
-    cap = np.stack([np.bincount(loop, cross[:, k]) for k in range(3)], axis=1)
+    cap = loop_vector_areas(verts, edges, loop)
     cap /= np.maximum(np.linalg.norm(cap, axis=1, keepdims=True), np.finfo(float).tiny)
+    points = np.asarray(verts, dtype=np.float64)
     a, b, c = (points[faces[:, k]] for k in range(3))
     face_normals = np.cross(b - a, c - a)  # twice the area, along the normal
     normals = np.zeros_like(points)
