@@ -12,7 +12,8 @@ Example (the table of the bad-input audit):
     .venv/bin/python bench/audit_bad_inputs.py --data ../shared/data/FAUST_r \
         --out bench/results/bad_input_audit
 
-Writes ``<out>.csv`` and ``<out>.md``; ``--only`` runs the named cases.
+Writes ``<out>.csv`` and ``<out>.md``; ``--only`` runs the named cases (written into the work
+folder unless ``--out`` is given, so that the committed table stays whole).
 """
 
 from __future__ import annotations
@@ -353,7 +354,12 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "FAUST_r"))
-    parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "bad_input_audit"))
+    parser.add_argument(
+        "--out",
+        default=None,
+        help="results path without suffix (default: bench/results/bad_input_audit; with --only, the work "
+        "folder, so that a few cases never overwrite the full table)",
+    )
     parser.add_argument("--memory-gib", type=float, default=8.0)
     parser.add_argument("--timeout", type=float, default=600.0)
     parser.add_argument("--only", nargs="*", default=None)
@@ -366,7 +372,10 @@ def main() -> None:
         row = run_case(case, work, args.memory_gib, args.timeout)
         print(" | ".join(str(v) for v in row.values()), flush=True)
         rows.append(row)
-    out = Path(args.out)
+    if not rows:
+        raise SystemExit(f"no case named {' '.join(args.only)}")
+    default_out = work / "bad_input_audit" if args.only else ROOT / "bench" / "results" / "bad_input_audit"
+    out = Path(args.out) if args.out else default_out
     out.parent.mkdir(parents=True, exist_ok=True)
     with open(out.with_suffix(".csv"), "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
