@@ -21,7 +21,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from spidermatch import defaults
-from spidermatch.geometry.holes import closed_but_for_small_holes
+from spidermatch.geometry.holes import sides_to_close
 from spidermatch.geometry.mesh import Mesh, small_holes_closed
 from spidermatch.geometry.remesh import decimate
 from spidermatch.model.costs import unit_rows
@@ -74,8 +74,7 @@ def pair_features(
 
     """
     method = "parts_features" if overlap else "part_features" if partial else "pair_features"
-    whole = not (partial or overlap)
-    wholes = (whole, whole or (partial and not overlap and closed_but_for_small_holes(target)))
+    wholes = sides_to_close(target, partial, overlap)
     if not hasattr(extractor, method):
         return tuple(
             mesh_features(extractor, mesh, max_vertices, record, is_whole)

@@ -23,9 +23,9 @@ from spidermatch.dense.settings import DenseSettings
 from spidermatch.eval.quality import assess
 from spidermatch.geometry.holes import (
     ClosedCopy,
-    closed_but_for_small_holes,
     closed_copy,
     nearest_given_vertices,
+    sides_to_close,
 )
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.partial import PairKind, covered_target, mean_edge_length
@@ -348,10 +348,8 @@ def closed_copies(source: Mesh, target: Mesh, settings: MatchSettings) -> tuple:
     """
     if not settings.close_small_holes:
         return None, None
-    if settings.partial:
-        closed = None, closed_copy(target) if closed_but_for_small_holes(target) else None
-    else:
-        closed = closed_copy(source), closed_copy(target)
+    sides = sides_to_close(target, settings.partial)
+    closed = tuple(closed_copy(mesh) if close else None for mesh, close in zip((source, target), sides))
     for mesh, copy in zip((source, target), closed):
         if copy is not None:
             logger.info(

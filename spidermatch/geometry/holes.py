@@ -19,10 +19,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from spidermatch.geometry.mesh import Mesh, small_holes_closed, topology
-
-CORNERS_OF_EDGE_SLOT = np.array([[1, 2], [2, 0], [0, 1]])
-"""Corners (within its face) of a face's directed edge in slot 0, 1, 2 (see :func:`_rim_faces`)."""
+from spidermatch.geometry.mesh import (
+    EDGE_SLOT_CORNERS,
+    Mesh,
+    directed_face_edges,
+    small_holes_closed,
+    topology,
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -96,6 +99,16 @@ def closed_but_for_small_holes(mesh: Mesh) -> bool:
     return topology(mesh).open_boundaries == 0
 
 
+def sides_to_close(target: Mesh, partial: bool, overlap: bool = False) -> tuple[bool, bool]:
+    """Whether the source and the target of a pair get their small holes closed.
+
+    Two whole shapes both; a part (``partial``) never, its target when that is closed but for
+    small holes (a whole scan); with ``overlap`` (two parts, ``partial="both"``) neither.
+    """
+    whole = not (partial or overlap)
+    return whole, whole or (partial and not overlap and closed_but_for_small_holes(target))
+
+
 def closed_copy(mesh: Mesh) -> ClosedCopy | None:
     """``mesh`` with its small holes closed (:func:`small_holes_closed`), or None when it has none."""
     closed = small_holes_closed(mesh)
@@ -112,12 +125,12 @@ def _rim_faces(faces: np.ndarray, start: np.ndarray, end: np.ndarray) -> tuple[n
     Returns the face (K,) and its corners (K, 2) of ``end`` and ``start``: the fan face over
     that edge runs it backwards, ``end`` first.
     """
-    directed = np.asarray(faces)[:, [1, 2, 2, 0, 0, 1]].reshape(-1, 2)
+    directed = directed_face_edges(faces)
     n = int(faces.max()) + 1
     keys = directed[:, 0] * n + directed[:, 1]
     order = np.argsort(keys)
     found = order[np.searchsorted(keys, start * n + end, sorter=order)]
-    corners = CORNERS_OF_EDGE_SLOT[found % 3]
+    corners = EDGE_SLOT_CORNERS[found % 3]
     return (found // 3).astype(np.int64), corners[:, ::-1].astype(np.int64)
 
 

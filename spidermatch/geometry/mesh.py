@@ -167,6 +167,16 @@ def principal_axes(points: np.ndarray) -> np.ndarray:
     return axes
 
 
+def vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals, shape (V, 3)."""
+    face_normals = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]])
+    normals = np.zeros_like(verts)
+    for k in range(3):
+        np.add.at(normals, faces[:, k], face_normals)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    return normals / np.maximum(length, 1e-12)
+
+
 def face_edges(faces: np.ndarray) -> np.ndarray:
     """The three sorted edges of every face, shape (F, 3, 2); edge k is opposite corner k."""
     opposite = np.stack([faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]], axis=1)
@@ -586,6 +596,19 @@ class Topology:
         return f"genus {self.genus}, {loops}"
 
 
+EDGE_SLOT_CORNERS = np.array([[1, 2], [2, 0], [0, 1]])
+"""The corners (within its face) that a face's directed edge in slot 0, 1, 2 runs from and to."""
+
+
+def directed_face_edges(faces: np.ndarray) -> np.ndarray:
+    """Every face's three edges as the face runs them, shape (3F, 2).
+
+    Row r is edge slot ``r % 3`` of face ``r // 3``, from corner ``EDGE_SLOT_CORNERS[r % 3, 0]``
+    to corner ``EDGE_SLOT_CORNERS[r % 3, 1]``.
+    """
+    return np.asarray(faces)[:, EDGE_SLOT_CORNERS.ravel()].reshape(-1, 2)
+
+
 def boundary_loops(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Boundary edges of manifold faces, directed as their face runs them, and the loop of each.
 
@@ -595,7 +618,7 @@ def boundary_loops(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     loop : np.ndarray, shape (B,), int64
         Index of the boundary loop (a connected component of the boundary edges) of each edge.
     """
-    directed = np.asarray(faces)[:, [1, 2, 2, 0, 0, 1]].reshape(-1, 2)
+    directed = directed_face_edges(faces)
     _, index, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
     edges = directed[counts[index.reshape(-1)] == 1]
     if not len(edges):
@@ -655,14 +678,7 @@ def loop_alignments(verts: np.ndarray, faces: np.ndarray, edges: np.ndarray, loo
         return np.zeros(0)
     cap = loop_vector_areas(verts, edges, loop)
     cap /= np.maximum(np.linalg.norm(cap, axis=1, keepdims=True), np.finfo(float).tiny)
-    points = np.asarray(verts, dtype=np.float64)
-    a, b, c = (points[faces[:, k]] for k in range(3))
-    face_normals = np.cross(b - a, c - a)  # twice the area, along the normal
-    normals = np.zeros_like(points)
-    for k in range(3):
-        np.add.at(normals, faces[:, k], face_normals)
-    rim = normals[edges[:, 0]]
-    rim /= np.maximum(np.linalg.norm(rim, axis=1, keepdims=True), np.finfo(float).tiny)
+    rim = vertex_normals(np.asarray(verts, dtype=np.float64), faces)[edges[:, 0]]
     cosines = np.abs(np.einsum("ij,ij->i", rim, cap[loop]))
     return np.bincount(loop, cosines) / np.bincount(loop)
 

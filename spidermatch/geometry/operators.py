@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from spidermatch.geometry.mesh import Mesh, triangle_areas
+from spidermatch.geometry.mesh import Mesh, triangle_areas, vertex_normals
 
 logger = logging.getLogger(__name__)
 
@@ -147,16 +147,6 @@ def laplacian_eigenpairs(laplacian: sp.csr_matrix, mass: np.ndarray, k: int) -> 
     evals, evecs = np.clip(evals[order], 0.0, None), evecs[:, order]
     norms = np.sqrt(np.einsum("vk,v,vk->k", evecs, mass, evecs))
     return evals, evecs / norms
-
-
-def vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals, shape (V, 3)."""
-    face_normals = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]])
-    normals = np.zeros_like(verts)
-    for k in range(3):
-        np.add.at(normals, faces[:, k], face_normals)
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    return normals / np.maximum(length, 1e-12)
 
 
 def tangent_frames(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
