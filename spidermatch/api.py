@@ -36,6 +36,7 @@ from spidermatch.geometry.partial import (
     pair_kind,
 )
 from spidermatch.geometry.repair import Repair, largest_clean_piece
+from spidermatch.geometry.weld import Weld, welded
 from spidermatch.model_size import check_meshes_fit
 from spidermatch.validate import check_settings, feature_cap_problem, raise_problems
 
@@ -302,7 +303,12 @@ def match(
     Parameters
     ----------
     source, target : path, trimesh.Trimesh, (verts (V, 3), faces (F, 3)) or Mesh
-        One connected manifold triangle surface each.
+        One connected manifold triangle surface each. A triangle soup (an STL file, a
+        vertex per face corner, seams split by an exporter) is welded into its surface
+        (:mod:`spidermatch.geometry.weld`); ``matches``, ``dense_map`` and ``source_overlap``
+        still name its own vertices (each repeated vertex with the image of the vertex it was
+        welded into), ``dense`` and ``details`` the welded mesh's; precomputed features are
+        given for the mesh as given.
     features : "wks", extractor, or (source (V_src, D), target (V_tgt, D)) arrays
         Per-vertex descriptors. "wks" needs no training; learned features come as
         ``features.learned.LearnedExtractor(checkpoint)``.
@@ -357,10 +363,13 @@ def match(
     from spidermatch.pipeline import match as run_pipeline
 
     raise_problems([feature_cap_problem(features_max_vertices, "features_max_vertices")])
-    source_mesh, repaired = mesh_of(source, "source", repair)
-    target_mesh, target_repaired = mesh_of(target, "target", repair)
+    source_mesh, repaired, source_weld = mesh_of(source, "source", repair)
+    target_mesh, target_repaired, target_weld = mesh_of(target, "target", repair)
     if isinstance(features, (tuple, list)) and len(features) == 2:  # given for the meshes as given
-        features = (_rows_of_piece(features[0], repaired), _rows_of_piece(features[1], target_repaired))
+        features = (
+            _rows_of_piece(_rows_welded(features[0], source_weld), repaired),
+            _rows_of_piece(_rows_welded(features[1], target_weld), target_repaired),
+        )
     dense_planned = settings is None or getattr(settings, "dense", None) is not None
     check_meshes_fit((source_mesh.n_verts, target_mesh.n_verts), dense_planned)
     kind = recognised_pair(source_mesh, target_mesh, partial)
@@ -394,7 +403,44 @@ def match(
         matching = on_whole_source(matching, piece, source_mesh.n_verts)
     if repaired is not None:
         matching = on_whole_source(matching, repaired.piece, repaired.n_original)
-    return matching if target_repaired is None else on_whole_target(matching, target_repaired.piece)
+    if target_repaired is not None:
+        matching = on_whole_target(matching, target_repaired.piece)
+    return on_file_vertices(matching, source_weld, target_weld)
+
+
+def _rows_welded(features, weld: Weld | None):
+    """Precomputed features (V_file, D) of a mesh given with repeated vertices, one row per welded vertex."""
+    if weld is None:
+        return features
+    rows = np.asarray(features)
+    if rows.ndim != 2 or rows.shape[0] != weld.n_file:
+        raise ValueError(
+            f"features of {weld.mesh.name}: expected one row per vertex of the mesh as given "
+            f"({weld.n_file}), got shape {rows.shape}"
+        )
+    return rows[weld.to_file]
+
+
+def on_file_vertices(matching: Matching, source_weld: Weld | None, target_weld: Weld | None) -> Matching:
+    """``matching`` told in the vertices of meshes given with repeated vertices (welded for matching).
+
+    ``matches`` name each welded vertex's first file vertex; ``dense_map`` and
+    ``source_overlap`` get one entry per vertex of the source file (a repeated vertex those of
+    the vertex it was welded into); ``dense`` and ``details`` stay in the welded meshes' indices.
+    """
+    matches, dense_map, overlap = matching.matches, matching.dense_map, matching.source_overlap
+    if source_weld is not None:
+        matches = (
+            None if matches is None else np.column_stack([source_weld.file_ids(matches[:, 0]), matches[:, 1]])
+        )
+        dense_map = None if dense_map is None else source_weld.file_values(dense_map)
+        overlap = None if overlap is None else source_weld.file_values(overlap)
+    if target_weld is not None:
+        matches = (
+            None if matches is None else np.column_stack([matches[:, 0], target_weld.file_ids(matches[:, 1])])
+        )
+        dense_map = None if dense_map is None else target_weld.file_ids(dense_map)
+    return dataclasses.replace(matching, matches=matches, dense_map=dense_map, source_overlap=overlap)
 
 
 def _rows_of_piece(features, repaired: Repair | None):
@@ -424,16 +470,49 @@ def on_whole_target(matching: Matching, piece: PartialShape) -> Matching:
     return dataclasses.replace(matching, matches=matches, dense_map=dense_map)
 
 
-def mesh_of(shape, role: str, repair: bool) -> tuple[Mesh, Repair | None]:
-    """``shape`` as a validated Mesh, or with ``repair`` an invalid one's largest clean piece and its cut.
+def mesh_of(shape, role: str, repair: bool) -> tuple[Mesh, Repair | None, Weld | None]:
+    """``shape`` as a validated Mesh, its repair and its weld (None where not needed).
 
-    Without ``repair``, a mesh that the repair would mend is refused with what it would match.
+    A mesh whose boundary vertices repeat positions (an STL file, a triangle soup, seams split
+    by an exporter) is matched welded (:mod:`spidermatch.geometry.weld`) when the welded mesh
+    is valid, or when neither it nor the mesh as given is (then it is the welded mesh that is
+    refused or repaired). With ``repair``, an invalid mesh's largest clean piece is matched;
+    without it, a mesh that the repair would mend is refused with what it would match.
     ``role`` ("source" or "target") names an in-memory mesh in messages.
     """
+    unchecked = _unchecked_mesh(shape, role)
+    weld = None if unchecked is None else welded(unchecked)
+    # a file is read once: its unchecked Mesh is validated as load_mesh would
+    given = unchecked if unchecked is not None and isinstance(shape, (str, os.PathLike)) else shape
+    if weld is None:
+        return (*_checked_or_repaired(given, role, repair, unchecked), None)
+    try:
+        mesh = validated(weld.mesh)
+    except MeshError:
+        try:
+            return as_mesh(given, role), None, None  # valid as given: its coincident vertices stay apart
+        except MeshError:
+            pass
+        try:
+            mesh, repaired = _checked_or_repaired(weld.mesh, role, repair, weld.mesh)
+        except MeshError as error:
+            repeats = weld.n_file - weld.mesh.n_verts
+            raise MeshError(f"{error} (read with its {repeats} repeated vertices welded)") from None
+        if repaired is not None:
+            mesh = dataclasses.replace(mesh, notes=(weld.note, *mesh.notes))
+        logger.warning("%s", weld.note)
+        return mesh, repaired, weld
+    logger.warning("%s", weld.note)
+    return mesh, None, weld
+
+
+def _checked_or_repaired(
+    shape, role: str, repair: bool, unchecked: Mesh | None
+) -> tuple[Mesh, Repair | None]:
+    """``shape`` validated, or (with ``repair``) the largest clean piece of ``unchecked``, its read form."""
     try:
         return as_mesh(shape, role), None
     except MeshError as error:
-        unchecked = _unchecked_mesh(shape, role)
         if unchecked is None:
             raise
         try:

@@ -81,6 +81,8 @@ def test_empty_and_missing_and_unsupported_files(tmp_path):
     with pytest.raises(MeshError, match="no such file"):
         load_mesh(tmp_path / "nope.off")
     with pytest.raises(MeshError, match="unsupported mesh type"):
+        load_mesh(write_off(tmp_path / "x.vtk", TETRA_V, TETRA_F))
+    with pytest.raises(MeshError, match=r"x\.stl: "):  # an OFF text named .stl: not an STL
         load_mesh(write_off(tmp_path / "x.stl", TETRA_V, TETRA_F))
     garbage = tmp_path / "garbage.off"
     garbage.write_text("OFF\n3 1 0\n0 0 zero\n1 0 0\n0 1 0\n3 0 1 2\n")

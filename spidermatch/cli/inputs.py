@@ -22,6 +22,7 @@ from spidermatch.geometry.io import read_vts
 from spidermatch.geometry.mesh import Mesh, MeshError
 from spidermatch.geometry.partial import PairKind, announce_pair, original_faces, overlap_kind, pair_kind
 from spidermatch.geometry.repair import Repair
+from spidermatch.geometry.weld import Weld
 from spidermatch.model_size import check_meshes_fit
 from spidermatch.validate import (
     OptionError,
@@ -49,6 +50,10 @@ class MatchInputs:
     overlap: bool = False
     piece_of: tuple | None = None  # (vertex ids (V,), face ids (F,)) of ``source`` in the user's source
     target_of: tuple | None = None  # (vertex ids, face ids, vertex count) of a repaired target in the user's
+    source_weld: Weld | None = (
+        None  # the user's source had repeated vertices, welded (outputs name the file's)
+    )
+    target_weld: Weld | None = None
 
 
 def load_inputs(cfg) -> MatchInputs:
@@ -57,17 +62,22 @@ def load_inputs(cfg) -> MatchInputs:
         raise DatasetError("give both source=PATH and target=PATH (or neither, for the built-in demo)")
     if cfg.source is not None:
         repair = bool(cfg.get("repair", False))
-        source, repaired = mesh_of(cfg.source, "source", repair)
-        target, target_repaired = mesh_of(cfg.target, "target", repair)
-        n_source = source.n_verts if repaired is None else repaired.n_original
-        n_target = target.n_verts if target_repaired is None else target_repaired.n_original
-        source_corr = read_vts(cfg.source_corr, n_source) if cfg.source_corr else None
-        target_corr = read_vts(cfg.target_corr, n_target) if cfg.target_corr else None
+        source, repaired, source_weld = mesh_of(cfg.source, "source", repair)
+        target, target_repaired, target_weld = mesh_of(cfg.target, "target", repair)
+        source_corr = _ground_truth(cfg.source_corr, source, repaired, source_weld)
+        target_corr = _ground_truth(cfg.target_corr, target, target_repaired, target_weld)
         if (source_corr is None) != (target_corr is None):
             raise DatasetError("give both source_corr= and target_corr= to evaluate against ground truth")
         check_ground_truth(source_corr, target_corr, cfg.source_corr, cfg.target_corr)
         inputs = MatchInputs(
-            source, target, source_corr, target_corr, int(cfg.resolution), f"{cfg.source} -> {cfg.target}"
+            source,
+            target,
+            source_corr,
+            target_corr,
+            int(cfg.resolution),
+            f"{cfg.source} -> {cfg.target}",
+            source_weld=source_weld,
+            target_weld=target_weld,
         )
         if target_repaired is not None:
             inputs = with_repaired(inputs, target_repaired, "target")
@@ -79,6 +89,18 @@ def load_inputs(cfg) -> MatchInputs:
     return MatchInputs(
         x.mesh, y.mesh, x.corr, y.corr, int(cfg.resolution), f"built-in synthetic pair {x.name} -> {y.name}"
     )
+
+
+def _ground_truth(path, mesh: Mesh, repaired: Repair | None, weld: Weld | None) -> np.ndarray | None:
+    """Reference points (K,) of ``path`` (file vertices), told in the welded mesh's where it was welded.
+
+    A repaired mesh's are told in the piece's later (:func:`with_repaired`).
+    """
+    if not path:
+        return None
+    if weld is not None:
+        return weld.to_welded[read_vts(path, weld.n_file)]
+    return read_vts(path, mesh.n_verts if repaired is None else repaired.n_original)
 
 
 def with_repaired(inputs: MatchInputs, repaired: Repair, role: str) -> MatchInputs:

@@ -151,6 +151,9 @@ def write_matching(
             written[:, 0] = inputs.piece_of[0][written[:, 0]]
         if inputs.target_of is not None:  # repair=true: name the user's target vertices
             written[:, 1] = inputs.target_of[0][written[:, 1]]
+        for column, weld in enumerate((inputs.source_weld, inputs.target_weld)):
+            if weld is not None:  # a file with repeated vertices: name its own
+                written[:, column] = weld.file_ids(written[:, column])
         write_matches(output_dir / "matches.csv", written)
         logger.info("wrote %s (%d matches)", output_dir / "matches.csv", len(pairs))
     if inputs.source_corr is None:
@@ -175,7 +178,8 @@ def write_dense(
     from spidermatch.dense.densify import certified_agreement
     from spidermatch.report.dense_report import dense_figures, write_dense_outputs
 
-    for path in write_dense_outputs(output_dir, result.dense, inputs.piece_of, inputs.target_of):
+    welds = (inputs.source_weld, inputs.target_weld)
+    for path in write_dense_outputs(output_dir, result.dense, inputs.piece_of, inputs.target_of, welds):
         logger.info("wrote %s", path)
     certified = certified_agreement(result.dense, inputs.target, result.source, result.target, result.low_map)
     figures, errors = dense_figures(

@@ -12,7 +12,7 @@ from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
 
 logger = logging.getLogger(__name__)
 
-MESH_SUFFIXES = (".off", ".obj", ".ply")
+MESH_SUFFIXES = (".off", ".obj", ".ply", ".stl")
 
 
 def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
@@ -21,7 +21,8 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
     Parameters
     ----------
     path : str or PathLike
-        A ``.off``, ``.obj`` or ``.ply`` file.
+        A ``.off``, ``.obj``, ``.ply`` or ``.stl`` file (an STL's vertices are its facets'
+        corners in file order, three per facet).
     validate : bool
         Run :func:`spidermatch.geometry.mesh.validate_mesh` (recommended).
 
@@ -53,9 +54,22 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
     notes = tuple(notes[0]) if notes else ()
     for note in notes:
         logger.warning("%s", note)
-    if validate:
+    if not validate:
+        return Mesh(verts, faces, name, notes)
+    try:
         return make_mesh(verts, faces, name, notes)
-    return Mesh(verts, faces, name, notes)
+    except MeshError as error:
+        from spidermatch.geometry.weld import welded
+
+        weld = welded(Mesh(verts, faces, name, notes))
+        if weld is None:
+            raise
+        repeats = weld.n_file - weld.mesh.n_verts
+        raise MeshError(
+            f"{error}; {repeats} of its vertices repeat the position of another (a triangle soup, as "
+            "STL stores it): spidermatch-match and spidermatch.match weld them, files read for "
+            "training or evaluation must be welded first (e.g. trimesh's merge_vertices)"
+        ) from None
 
 
 def _text_of(path: Path) -> str:
@@ -258,6 +272,13 @@ def _read_with_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise MeshError(f"{path}: could not be read as a mesh ({type(error).__name__}: {error})") from error
     verts = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
     faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int64)
+    if faces.size == 0:
+        what = (
+            f"a point cloud of {verts.shape[0]} points"
+            if verts.shape[0]
+            else f"not a {path.suffix.lower()} file"
+        )
+        raise MeshError(f"{path}: no triangles could be read ({what}?)")
     return verts, faces.reshape(-1, 3) if faces.size else np.zeros((0, 3), dtype=np.int64)
 
 

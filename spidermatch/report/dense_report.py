@@ -40,13 +40,18 @@ from spidermatch.eval.metrics import (
 )
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.partial import ids_or_missing
+from spidermatch.geometry.weld import Weld
 from spidermatch.shutdown import atomic_path
 
 logger = logging.getLogger(__name__)
 
 
 def write_dense_outputs(
-    output_dir: Path, dense: DenseMap, piece: tuple | None = None, target_piece: tuple | None = None
+    output_dir: Path,
+    dense: DenseMap,
+    piece: tuple | None = None,
+    target_piece: tuple | None = None,
+    welds: tuple = (None, None),
 ) -> list[Path]:
     """Write ``dense_matches.csv``, ``dense_map.npz`` and, with an inverse map, ``dense_inverse_matches.csv``.
 
@@ -67,18 +72,42 @@ def write_dense_outputs(
         name the target's own vertices and faces; the arrays per target vertex
         (``target_covered``, ``inverse_*``) get V_Y entries, False or -1 (NaN for
         ``inverse_bary`` and ``inverse_gap``) at the vertices the repair left out.
+    welds : (Weld or None, Weld or None)
+        Source and target given with repeated vertices and matched welded
+        (:mod:`spidermatch.geometry.weld`; after any piece above, which then lies in the welded
+        mesh): the files name the files' own vertices, a row per source file vertex and a
+        per-target-vertex entry per target file vertex, each repeated vertex with the values of
+        the vertex it was welded into.
     """
     csv_path, npz_path = output_dir / "dense_matches.csv", output_dir / "dense_map.npz"
     dense = dense if target_piece is None else on_user_target(dense, *target_piece)
+    source_weld, target_weld = welds
+    dense = dense if target_weld is None else on_file_target(dense, target_weld)
     vertex_ids, face_ids = piece if piece is not None else (None, None)
-    _write_vertex_pairs(csv_path, dense.vertex, "source_vertex,target_vertex", sources=vertex_ids)
+    inverse_ids = vertex_ids  # where a piece vertex lies in the source as given (None: itself)
+    rows = None
+    if source_weld is not None:
+        inverse_ids = source_weld.to_file if vertex_ids is None else source_weld.file_ids(vertex_ids)
+        rows, vertex_ids = source_weld.file_rows(
+            np.arange(dense.vertex.size) if vertex_ids is None else vertex_ids
+        )
+        if piece is None:  # every file vertex has a row, in order
+            vertex_ids = None
+    image_vertex, image_face, image_bary = (
+        (dense.vertex, dense.face, dense.bary)
+        if rows is None
+        else (dense.vertex[rows], dense.face[rows], dense.bary[rows])
+    )
+    _write_vertex_pairs(csv_path, image_vertex, "source_vertex,target_vertex", sources=vertex_ids)
     extra = {} if dense.covered is None else {"target_covered": dense.covered}
     if vertex_ids is not None:
         extra["source_vertex"] = vertex_ids
     written = [csv_path, npz_path]
     if dense.inverse is not None:
         inverse = dense.inverse
-        inverse_vertex = inverse.vertex if vertex_ids is None else ids_or_missing(vertex_ids, inverse.vertex)
+        inverse_vertex = (
+            inverse.vertex if inverse_ids is None else ids_or_missing(inverse_ids, inverse.vertex)
+        )
         extra.update(
             inverse_vertex=inverse_vertex,
             inverse_face=inverse.face if face_ids is None else ids_or_missing(face_ids, inverse.face),
@@ -89,7 +118,7 @@ def write_dense_outputs(
         _write_vertex_pairs(written[-1], inverse_vertex, "target_vertex,source_vertex")
     with atomic_path(npz_path) as tmp:
         np.savez(
-            tmp, vertex=dense.vertex, face=dense.face, bary=dense.bary, method=np.array(dense.method), **extra
+            tmp, vertex=image_vertex, face=image_face, bary=image_bary, method=np.array(dense.method), **extra
         )
     return written
 
@@ -119,6 +148,24 @@ def on_user_target(dense: DenseMap, vertex_ids: np.ndarray, face_ids: np.ndarray
     return DenseMap(
         vertex_ids[dense.vertex], face_ids[dense.face], dense.bary, dense.method, covered, inverse
     )
+
+
+def on_file_target(dense: DenseMap, weld: Weld) -> DenseMap:
+    """``dense`` (onto a welded target) told in the target file's vertices; faces keep their numbers.
+
+    Image vertices become their first file vertex; per-target-vertex arrays get one entry per
+    file vertex, a repeated vertex that of the vertex it was welded into.
+    """
+    covered = None if dense.covered is None else weld.file_values(dense.covered)
+    inverse = dense.inverse
+    if inverse is not None:
+        inverse = InverseMap(
+            *(
+                weld.file_values(values)
+                for values in (inverse.vertex, inverse.face, inverse.bary, inverse.gap)
+            )
+        )
+    return DenseMap(weld.file_ids(dense.vertex), dense.face, dense.bary, dense.method, covered, inverse)
 
 
 def _write_vertex_pairs(
