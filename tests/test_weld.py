@@ -179,3 +179,19 @@ def test_a_soup_that_is_no_surface_is_refused_naming_the_weld(tmp_path):
         MeshError, match="repeat the position of another"
     ):  # datasets and training read it too
         load_mesh(tmp_path / "twice.stl")
+
+
+def test_a_sliver_facet_in_a_soup_is_left_to_the_repair(tmp_path):
+    """A facet with a repeated corner on a body edge joins nothing; repair=true drops it."""
+    sphere = icosphere(2)
+    a, b = sphere.faces[0, :2]
+    faces = np.vstack([sphere.faces, [[a, a, b]]])  # a sliver on the edge (a, b): three faces there
+    soup = sphere.verts[faces].reshape(-1, 3)
+    path = tmp_path / "sliver.stl"
+    trimesh.Trimesh(soup, np.arange(len(soup)).reshape(-1, 3), process=False).export(path)
+    with pytest.raises(MeshError, match=r"sliver\.stl: 1 degenerate faces.*repair=true would match.*welded"):
+        mesh_of(str(path), "source", repair=False)
+    mesh, repaired, weld = mesh_of(str(path), "source", repair=True)
+    assert weld is not None and repaired is not None
+    assert mesh.n_verts == sphere.n_verts and mesh.n_faces == sphere.n_faces  # the body, whole
+    assert topology(mesh).boundaries == 0

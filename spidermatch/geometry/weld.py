@@ -128,7 +128,13 @@ def _welded_numbering(
     each side of the contact.
     """
     tail, head = faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)  # half-edge 3f + k
+    corners = position[faces]
+    repeats = (
+        (corners[:, 0] == corners[:, 1]) | (corners[:, 1] == corners[:, 2]) | (corners[:, 2] == corners[:, 0])
+    )
     ends = np.sort(np.stack([position[tail], position[head]], axis=1), axis=1)
+    # a facet with a repeated corner (a sliver) pairs with nothing: each of its edges is its own
+    ends[np.repeat(repeats, 3)] = -1 - np.arange(3 * repeats.sum())[:, None]
     _, edge_of, count = np.unique(ends, axis=0, return_inverse=True, return_counts=True)
     edge_of = edge_of.reshape(-1)
     paired = np.flatnonzero(count[edge_of] == 2)
