@@ -105,6 +105,8 @@ def make_cases(data: Path, work: Path) -> list[Case]:
     write_off(work / "tet_b.off", tet_v * [1, 1.2, 0.9], tet_f)
     write_off(work / "raw_scan.off", *raw_scan(vx, fx))
     write_off(work / "scan_holes.off", *scanner_holes(read_off(y)[0], read_off(y)[1], SCANNER_HOLES))
+    write_binary_stl(work / "source.stl", vx, fx)
+    write_soup_obj(work / "target_soup.obj", *read_off(y))
     base = [f"source={x}", f"target={y}", "resolution=150"]
     reuse = work / "reused"
 
@@ -256,7 +258,38 @@ def make_cases(data: Path, work: Path) -> list[Case]:
             "the target with three small holes (the faces around 3 vertices cut), no options",
             match(f"source={x}", f"target={work / 'scan_holes.off'}", "resolution=150"),
         ),
+        Case(
+            "stl_source",
+            "the source as a binary STL file (a triangle soup), no options",
+            match(f"source={work / 'source.stl'}", f"target={y}", "resolution=150"),
+        ),
+        Case(
+            "soup_obj_target",
+            "the target as an OBJ with three vertices of its own per face, no options",
+            match(f"source={x}", f"target={work / 'target_soup.obj'}", "resolution=150"),
+        ),
     ]
+
+
+def write_binary_stl(path: Path, verts: np.ndarray, faces: np.ndarray) -> Path:
+    """A binary STL file: an 80-byte header, the facet count, then per facet a normal, three corners
+    and a 2-byte attribute (all float32), as scanners export them."""
+    corners = verts[faces].astype(np.float32)
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    record = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
+    facets = np.zeros(len(faces), dtype=record)
+    facets["normal"], facets["corners"] = normals, corners
+    with open(path, "wb") as handle:
+        handle.write(b"audit".ljust(80, b" ") + np.uint32(len(faces)).tobytes() + facets.tobytes())
+    return path
+
+
+def write_soup_obj(path: Path, verts: np.ndarray, faces: np.ndarray) -> Path:
+    """An OBJ file with three vertices of its own per face (as some exporters write)."""
+    lines = [f"v {a} {b} {c}" for a, b, c in verts[faces].reshape(-1, 3)]
+    lines += [f"f {3 * i + 1} {3 * i + 2} {3 * i + 3}" for i in range(len(faces))]
+    path.write_text("\n".join(lines) + "\n")
+    return path
 
 
 SCANNER_HOLES = (100, 2500, 4000)

@@ -17,6 +17,10 @@ files and on copies made the way users' files arrive:
     small holes where a scanner saw nothing: the faces around ``SCAN_HOLES`` random vertices
     (two rings: about 0.3 % of the area each) cut from each mesh, 4 from the source and 6 from
     the target, each reference point of a cut vertex moved to the nearest vertex left.
+``stl``
+    both meshes as binary STL files (a triangle soup: three vertices per facet, float32), the
+    target in millimetres, turned and moved as ``scaled``; the run's outputs name the files'
+    corners and are told back in the original vertices to be scored.
 
 Loop subdivision keeps the original vertices first, so the ``corres/*.vts`` ground truth
 applies to the subdivided copies. Each match runs as a user runs it, without ground truth:
@@ -65,7 +69,7 @@ from spidermatch.geometry.partial import kept_part  # noqa: E402
 from spidermatch.geometry.remesh import decimate, nearest_vertices  # noqa: E402
 
 VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
-KINDS = ("clean", "scaled", "sub80k", "sub200k", "sub320k", "holes")
+KINDS = ("clean", "scaled", "sub80k", "sub200k", "sub320k", "holes", "stl")
 SCAN_HOLES = (4, 6)
 """Small holes cut from the source and from the target by the ``holes`` copy."""
 HOLE_RINGS = 2
@@ -100,6 +104,8 @@ def copies(kind: str, meshes: list[Path], corr: list[Path], folder: Path, seed: 
         return [meshes[0], out], corr
     if kind == "holes":
         return holed_copies(meshes, corr, folder, rng)
+    if kind == "stl":
+        return stl_copies(meshes, folder, rng), corr
     made_meshes, made_corr = [], []
     for path, truth in zip(meshes, corr):
         out, out_corr = folder / f"{path.stem}_{kind}.off", folder / f"{path.stem}_{kind}.vts"
@@ -113,6 +119,22 @@ def copies(kind: str, meshes: list[Path], corr: list[Path], folder: Path, seed: 
         made_meshes.append(out)
         made_corr.append(out_corr)
     return made_meshes, made_corr
+
+
+def stl_copies(meshes: list[Path], folder: Path, rng) -> list[Path]:
+    """Both meshes written as binary STL (the target in mm, turned and moved), as a scanner exports them."""
+    import trimesh
+
+    made = []
+    for index, path in enumerate(meshes):
+        mesh = load_mesh(path)
+        verts = mesh.verts
+        if index == 1:
+            verts = 1000.0 * verts @ random_rotation(rng).T + rng.uniform(-2000, 2000, size=3)
+        out = folder / f"{path.stem}.stl"
+        trimesh.Trimesh(verts, mesh.faces, process=False).export(out)
+        made.append(out)
+    return made
 
 
 def holed_copies(meshes: list[Path], corr: list[Path], folder: Path, rng) -> tuple[list, list]:
@@ -182,20 +204,38 @@ def run_match(args, source: Path, target: Path, run_dir: Path) -> dict:
     }
 
 
-def measured_errors(run_dir: Path, meshes: list[Path], corr: list[Path], sample: np.ndarray) -> dict:
-    """Mean geodesic errors of the run's sparse map (all matches) and dense map (``sample`` points)."""
+def measured_errors(
+    run_dir: Path, meshes: list[Path], corr: list[Path], sample: np.ndarray, corners: bool = False
+) -> dict:
+    """Mean geodesic errors of the run's sparse map (all matches) and dense map (``sample`` points).
+
+    With ``corners`` the run matched STL copies of ``meshes``: its outputs name the facets'
+    corners (3f + k is corner k of face f), told back here in the meshes' own vertices.
+    """
     start = time.perf_counter()
     source, target = load_mesh(meshes[0]), load_mesh(meshes[1])
     src_corr, tgt_corr = read_vts(corr[0], source.n_verts), read_vts(corr[1], target.n_verts)
+    source_vertex_of = source.faces.reshape(-1) if corners else np.arange(source.n_verts)
+    target_vertex_of = target.faces.reshape(-1) if corners else np.arange(target.n_verts)
     geodesics = GeodesicDistances(target)
     errors = {"sparse_error": None, "dense_error": None}
     if (run_dir / "matches.csv").is_file():
         pairs = np.loadtxt(run_dir / "matches.csv", delimiter=",", skiprows=1, dtype=np.int64, ndmin=2)
         errors["sparse_error"] = sparse_map_errors(
-            pairs[:, 0], pairs[:, 1], source, src_corr, tgt_corr, target, geodesics
+            source_vertex_of[pairs[:, 0]],
+            target_vertex_of[pairs[:, 1]],
+            source,
+            src_corr,
+            tgt_corr,
+            target,
+            geodesics,
         ).mean
     if (run_dir / "dense_map.npz").is_file():
         vertex = np.load(run_dir / "dense_map.npz")["vertex"]
+        if corners:  # the image of each source vertex's first corner
+            first_corner = np.full(source.n_verts, -1)
+            first_corner[source_vertex_of[::-1]] = np.arange(source_vertex_of.size)[::-1]
+            vertex = target_vertex_of[vertex[first_corner]]
         errors["dense_error"] = dense_map_errors(
             vertex, src_corr[sample], tgt_corr[sample], target, geodesics
         ).mean
@@ -258,7 +298,10 @@ def main() -> None:
             pair_meshes, pair_corr = copies(kind, meshes, corr, work / "copies", seed=sum(map(ord, pair)))
             run_dir = work / "runs" / f"{pair.replace(':', '_')}_{kind}"
             row = {"pair": pair, "kind": kind, **run_match(args, *pair_meshes, run_dir)}
-            row.update(measured_errors(run_dir, pair_meshes, pair_corr, sample))
+            if kind == "stl":  # scored on the meshes the STL files were written from
+                row.update(measured_errors(run_dir, meshes, corr, sample, corners=True))
+            else:
+                row.update(measured_errors(run_dir, pair_meshes, pair_corr, sample))
             print(json.dumps(row), flush=True)
             rows.append(row)
     write_rows(Path(args.out).with_suffix(".json"), rows, {"summary": summary(rows)})
