@@ -22,6 +22,8 @@ from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepar
 from features.fmap import FmapLossConfig, fmap_terms
 from features.orientation import (
     COORDINATE_INPUTS,
+    PLACED_ORIENTATIONS,
+    UNTURNED,
     Orientation,
     OrientationSearch,
     oriented_outputs,
@@ -295,13 +297,33 @@ class LearnedExtractor:
         feat_whole : np.ndarray, shape (V_whole, C_out)
 
         """
+        options, feat_whole = self.part_feature_options(part, whole, count=1)
+        return options[0][1], feat_whole
+
+    def part_feature_options(
+        self, part: Mesh, whole: Mesh, count: int = PLACED_ORIENTATIONS
+    ) -> tuple[list[tuple[str, np.ndarray]], np.ndarray]:
+        """Descriptors of a partial source in each of its ``count`` best presentations, and of the whole.
+
+        As :meth:`part_features`, but the part is shown to the network in each of the best
+        presentations of the orientation search
+        (:meth:`features.orientation.OrientationSearch.ranked_for_part`), best first, so that
+        the matching can choose among them (:func:`spidermatch.pipeline.match_presentations`).
+        Without an orientation search there is one presentation.
+
+        Returns
+        -------
+        options : list of (str, np.ndarray (V_part, C_out))
+            Each presentation's description and the part's features in it.
+        feat_whole : np.ndarray, shape (V_whole, C_out)
+        """
         self._check_size(part, whole)
         if self.adapt_steps:
             logger.warning("%s: test-time adaptation skipped for a partial source", part.name)
         feat_whole = self._features(self.network, whole)
         shown = self.orientations.get(whole.name)
         whole_points = whole.verts if shown is None else whole.verts @ shown.rotation.double().numpy().T
-        return self._part_onto(part, feat_whole, whole_points, whole.area), feat_whole
+        return self._part_options(part, feat_whole, whole_points, whole.area, count), feat_whole
 
     def parts_features(self, part_x: Mesh, part_y: Mesh) -> tuple[np.ndarray, np.ndarray]:
         """Descriptors of two parts of one surface (partial-to-partial), in one unit of length.
@@ -333,18 +355,33 @@ class LearnedExtractor:
         ``other_points`` (V_other, 3) are the other shape's vertices as its features were computed
         (rotated by its own orientation, in the same unit as given).
         """
+        return self._part_options(part, feat_other, other_points, unit_area, 1)[0][1]
+
+    def _part_options(
+        self, part: Mesh, feat_other: np.ndarray, other_points: np.ndarray, unit_area: float, count: int
+    ) -> list[tuple[str, np.ndarray]]:
+        """``part``'s descriptors in its ``count`` best presentations on the other shape (see _part_onto)."""
         shape = prepare_shape(part, self.config, use_cache=self.use_cache, scale_area=unit_area)
-        if self.orientation is not None:
+        if self.orientation is None:
+            presentations = [UNTURNED]
+        else:
             probe = probe_input(part, self.config, self.train_faces, self.use_cache, scale_area=unit_area)
-            chosen = self.orientation.best_for_part(
+            ranked = self.orientation.ranked_for_part(
                 self.network, probe, torch.from_numpy(feat_other).float(), other_points / np.sqrt(unit_area)
             )
-            self.orientations[part.name] = chosen
-            if chosen.degrees != 0.0 or any(chosen.offset):
-                logger.info("%s: input %s (orientation search for a part)", part.name, chosen.describe())
-            shape = presented_input(shape, chosen)
+            presentations = ranked[: max(1, count)]
+            self.orientations[part.name] = presentations[0]
+            if presentations[0].degrees != 0.0 or any(presentations[0].offset):
+                logger.info(
+                    "%s: input %s (orientation search for a part)", part.name, presentations[0].describe()
+                )
+        options = []
         with torch.no_grad():
-            return normalise_rows(self.network(shape.features, shape.ops).double().numpy())
+            for presentation in presentations:
+                shown = presented_input(shape, presentation)
+                features = self.network(shown.features, shown.ops).double().numpy()
+                options.append((presentation.describe(), normalise_rows(features)))
+        return options
 
     def adapt(self, mesh_x: Mesh, mesh_y: Mesh) -> DiffusionNet:
         """A copy of the network fine-tuned for ``adapt_steps`` Adam steps on this pair."""
@@ -502,6 +539,17 @@ class EnsembleExtractor:
     def part_features(self, part: Mesh, whole: Mesh) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`LearnedExtractor.part_features` of every member, joined, (V_part, D) and (V_whole, D)."""
         return self._joined_pairs([member.part_features(part, whole) for member in self.members])
+
+    def part_feature_options(
+        self, part: Mesh, whole: Mesh, count: int = PLACED_ORIENTATIONS
+    ) -> tuple[list[tuple[str, np.ndarray]], np.ndarray]:
+        """:meth:`LearnedExtractor.part_feature_options` of every member, the k-th options joined."""
+        found = [member.part_feature_options(part, whole, count) for member in self.members]
+        options = [
+            (" + ".join(label for label, _ in row), self._joined([features for _, features in row]))
+            for row in zip(*(member_options for member_options, _ in found))
+        ]
+        return options, self._joined([feat_whole for _, feat_whole in found])
 
     def parts_features(self, part_x: Mesh, part_y: Mesh) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`LearnedExtractor.parts_features` of every member, joined, (V_x, D) and (V_y, D)."""

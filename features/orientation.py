@@ -233,15 +233,25 @@ class OrientationSearch:
     ) -> Orientation:
         """The orientation and place of a partial shape whose feature matches are most alike and rigid.
 
+        The first of :meth:`ranked_for_part` (see there).
+        """
+        return self.ranked_for_part(network, part, whole, whole_points)[0]
+
+    def ranked_for_part(
+        self, network: DiffusionNet, part: ShapeInput, whole: torch.Tensor, whole_points: np.ndarray
+    ) -> list[Orientation]:
+        """The best presentations of a partial shape, best first: one per orientation placed.
+
         The unsupervised loss of :meth:`search` compares two whole shapes. A part is judged
         instead by where its vertices' features find their nearest features on the whole: each
         candidate scores the median distance of those partners from where a single rigid motion
         puts the vertices (:func:`spidermatch.geometry.partial.rigid_fit_residual`) times one
-        minus the mean similarity of the matched features; the smallest wins (no labels). Every
-        orientation is scored with the part centred on itself; the ``PLACED_ORIENTATIONS`` best
-        are then scored again with the part's centre at every trial placement on the whole
+        minus the mean similarity of the matched features; the smaller the better (no labels).
+        Every orientation is scored with the part centred on itself; the ``PLACED_ORIENTATIONS``
+        best are then scored again with the part's centre at every trial placement on the whole
         (:func:`placement_offsets`), since a part centred on itself hides which region of the
-        whole it is (docs/partial.md, "Placement of a part").
+        whole it is (docs/partial.md, "Placement of a part"). Each of those orientations gives
+        its best-scored presentation (centred or placed); they are returned by score.
 
         Parameters
         ----------
@@ -254,6 +264,11 @@ class OrientationSearch:
         whole_points : np.ndarray, shape (V, 3)
             The whole's vertices in the same unit, as the network was shown them (rotated
             by the whole's own orientation), which sets the trial placements.
+
+        Returns
+        -------
+        list of Orientation
+            ``PLACED_ORIENTATIONS`` presentations (fewer if there are fewer candidates).
         """
         points = part.features[:, -XYZ_CHANNELS:].double().numpy()
 
@@ -264,20 +279,22 @@ class OrientationSearch:
             return residual * (1.0 - similarity.double().mean().item())
 
         offsets = placement_offsets(whole_points)[1:]  # the centred placement is scored first
+        ranked = []
         with torch.no_grad():
-            # stable sort: of equal scores the earlier candidate wins, as before the placements
+            # stable sorts: of equal scores the earlier candidate wins
             centred = sorted(
                 ((score(candidate), candidate) for candidate in self.candidates(part)),
                 key=lambda item: item[0],
             )
-            best_score, best = centred[0]
-            for _, candidate in centred[:PLACED_ORIENTATIONS]:
+            for best_score, candidate in centred[:PLACED_ORIENTATIONS]:
+                best = candidate
                 for offset in offsets:
                     placed = replace(candidate, offset=tuple(float(v) for v in offset))
                     placed_score = score(placed)
                     if placed_score < best_score:
                         best_score, best = placed_score, placed
-        return best
+                ranked.append((best_score, best))
+        return [presentation for _, presentation in sorted(ranked, key=lambda item: item[0])]
 
     def _best(
         self, network: DiffusionNet, reference: torch.Tensor, shape: ShapeInput

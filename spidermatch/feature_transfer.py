@@ -80,16 +80,54 @@ def pair_features(
             mesh_features(extractor, mesh, max_vertices, record, is_whole)
             for mesh, is_whole in zip((source, target), wholes)
         )
+    shown, back = _shown_pair(source, target, wholes, max_vertices, record)
+    return tuple(back(side, features) for side, features in enumerate(getattr(extractor, method)(*shown)))
+
+
+def part_feature_options(
+    extractor,
+    source: Mesh,
+    target: Mesh,
+    count: int,
+    max_vertices: int | None = MAX_FEATURE_VERTICES,
+    record: dict | None = None,
+) -> tuple[list[tuple[str, np.ndarray]], np.ndarray]:
+    """A partial source's features in each of its ``count`` best presentations, and the target's.
+
+    An extractor with ``part_feature_options(part, whole, count)`` (an orientation search)
+    gives several; any other gives one, its :func:`pair_features` with ``partial=True``.
+
+    Returns
+    -------
+    options : list of (str, np.ndarray (V_src, D))
+        Each presentation's description (empty without a search) and the source's features in it.
+    target_features : np.ndarray, shape (V_tgt, D)
+    """
+    if count <= 1 or not hasattr(extractor, "part_feature_options"):
+        feat_x, feat_y = pair_features(extractor, source, target, max_vertices, record, partial=True)
+        return [("", feat_x)], feat_y
+    shown, back = _shown_pair(source, target, sides_to_close(target, True), max_vertices, record)
+    options, feat_y = extractor.part_feature_options(*shown, count)
+    return [(label, back(0, features)) for label, features in options], back(1, feat_y)
+
+
+def _shown_pair(source: Mesh, target: Mesh, wholes, max_vertices, record):
+    """The meshes an extractor is shown for a pair (centred, closed where whole, capped) and the way back.
+
+    Returns the two meshes shown and ``back(side, features)``: features computed on side 0
+    (source) or 1 (target) as shown, carried to that mesh's own vertices.
+    """
     centred = [
         closed_for_features(mesh.centred(), is_whole) for mesh, is_whole in zip((source, target), wholes)
     ]
     capped = [capped_mesh(mesh, max_vertices, record) for mesh in centred]
     shown = [mesh if low is None else low for low, mesh in zip(capped, centred)]
-    computed = getattr(extractor, method)(*shown)
-    return tuple(
-        on_full_mesh(features, low, mesh)[: given.n_verts]
-        for features, low, mesh, given in zip(computed, capped, centred, (source, target))
-    )
+    given = (source, target)
+
+    def back(side: int, features: np.ndarray) -> np.ndarray:
+        return on_full_mesh(features, capped[side], centred[side])[: given[side].n_verts]
+
+    return shown, back
 
 
 def closed_for_features(mesh: Mesh, whole: bool = True) -> Mesh:

@@ -231,3 +231,21 @@ def test_a_part_centred_on_itself_is_placed_where_it_lies_on_its_whole(creature)
     assert chosen.degrees == 0.0
     assert np.abs(np.array(chosen.offset) - true_offset).max() <= PLACEMENT_STEP
     assert abs(chosen.offset[1] - true_offset[1]) < abs(true_offset[1])  # closer than centred on itself
+
+
+def test_the_ranked_presentations_of_a_part_start_with_the_best_one(creature):
+    """``ranked_for_part`` gives one presentation per placed orientation, best first."""
+    from features.diffusion_net import ShapeInput
+    from features.orientation import PLACED_ORIENTATIONS
+
+    whole_points = (creature.verts - creature.verts.mean(axis=0)) / np.sqrt(creature.area)
+    lower = whole_points[:, 1] < np.quantile(whole_points[:, 1], 0.4)
+    part = ShapeInput(torch.from_numpy(whole_points[lower] - whole_points[lower].mean(axis=0)).float(), None)
+    net = _PositionNetwork()
+    whole = torch.nn.functional.normalize(net(torch.from_numpy(whole_points).float(), None), dim=-1)
+    search = OrientationSearch(reference=None, turns=4, loss=None)
+    ranked = search.ranked_for_part(net, part, whole, whole_points)
+    assert len(ranked) == PLACED_ORIENTATIONS
+    assert len({presentation.degrees for presentation in ranked}) == PLACED_ORIENTATIONS  # one per turn
+    best = search.best_for_part(net, part, whole, whole_points)
+    assert best.degrees == ranked[0].degrees == 0.0 and best.offset == ranked[0].offset
