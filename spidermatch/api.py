@@ -368,8 +368,8 @@ def match(
     target_mesh, target_repaired, target_weld = mesh_of(target, "target", repair)
     if isinstance(features, (tuple, list)) and len(features) == 2:  # given for the meshes as given
         features = (
-            _rows_of_piece(_rows_welded(features[0], source_weld), repaired),
-            _rows_of_piece(_rows_welded(features[1], target_weld), target_repaired),
+            _matched_rows(features[0], source_weld, repaired),
+            _matched_rows(features[1], target_weld, target_repaired),
         )
     dense_planned = settings is None or getattr(settings, "dense", None) is not None
     check_meshes_fit((source_mesh.n_verts, target_mesh.n_verts), dense_planned)
@@ -430,19 +430,6 @@ def _feature_options(features, source: Mesh, target: Mesh, cap: int | None, mode
     return [("", feat_x)], feat_y, name
 
 
-def _rows_welded(features, weld: Weld | None):
-    """Precomputed features (V_file, D) of a mesh given with repeated vertices, one row per welded vertex."""
-    if weld is None:
-        return features
-    rows = np.asarray(features)
-    if rows.ndim != 2 or rows.shape[0] != weld.n_file:
-        raise ValueError(
-            f"features of {weld.mesh.name}: expected one row per vertex of the mesh as given "
-            f"({weld.n_file}), got shape {rows.shape}"
-        )
-    return rows[weld.to_file]
-
-
 def on_file_vertices(matching: Matching, source_weld: Weld | None, target_weld: Weld | None) -> Matching:
     """``matching`` told in the vertices of meshes given with repeated vertices (welded for matching).
 
@@ -465,17 +452,29 @@ def on_file_vertices(matching: Matching, source_weld: Weld | None, target_weld: 
     return dataclasses.replace(matching, matches=matches, dense_map=dense_map, source_overlap=overlap)
 
 
-def _rows_of_piece(features, repaired: Repair | None):
-    """Precomputed features (V_given, D) of a mesh cut to its repaired piece's vertices (V_piece, D)."""
-    if repaired is None:
-        return features
-    rows = np.asarray(features)
-    if rows.ndim != 2 or rows.shape[0] != repaired.n_original:
-        raise ValueError(
-            f"features of {repaired.piece.mesh.name}: expected one row per vertex of the mesh as given "
-            f"({repaired.n_original}), got shape {rows.shape}"
+def _matched_rows(features, weld: Weld | None, repaired: Repair | None):
+    """Precomputed features (V_given, D) of a mesh as given, one row per vertex of the mesh matched.
+
+    That mesh is the given one welded (``weld``), then cut to its repaired piece (``repaired``).
+    """
+    if weld is not None:
+        features = _rows_kept(features, weld.n_file, weld.to_file, weld.mesh.name)
+    if repaired is not None:
+        features = _rows_kept(
+            features, repaired.n_original, repaired.piece.to_original, repaired.piece.mesh.name
         )
-    return rows[repaired.piece.to_original]
+    return features
+
+
+def _rows_kept(features, n_given: int, kept: np.ndarray, name: str) -> np.ndarray:
+    """The rows ``kept`` (V,) of features (``n_given``, D); other shapes are refused naming ``name``."""
+    rows = np.asarray(features)
+    if rows.ndim != 2 or rows.shape[0] != n_given:
+        raise ValueError(
+            f"features of {name}: expected one row per vertex of the mesh as given ({n_given}), "
+            f"got shape {rows.shape}"
+        )
+    return rows[kept]
 
 
 def on_whole_target(matching: Matching, piece: PartialShape) -> Matching:
