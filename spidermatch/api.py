@@ -195,7 +195,10 @@ def _unchecked_mesh(shape, role: str) -> Mesh | None:
             return None
         if np.iscomplexobj(verts) or np.iscomplexobj(faces):  # refused as given; nothing to repair
             return None
-        return Mesh(np.asarray(verts, dtype=np.float64), np.asarray(faces, dtype=np.int64), name)
+        faces = np.asarray(faces)
+        if faces.dtype.kind == "f" and not np.array_equal(faces, np.round(faces)):
+            return None  # refused as given (not vertex indices); never truncated into others
+        return Mesh(np.asarray(verts, dtype=np.float64), faces.astype(np.int64), name)
     except (MeshError, ValueError, TypeError):
         return None
 
