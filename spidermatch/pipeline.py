@@ -536,14 +536,29 @@ def _solo(settings: MatchSettings, solver: SolverOptions) -> MatchSettings:
     return dataclasses.replace(settings, solver=solver, dense=None)
 
 
+PRESENTATION_MARGIN = 0.15
+"""A presentation other than the search's first is kept only if its matching costs less than the
+first's by more than this share (docs/partial.md, "Several presentations")."""
+
+
 def _cheapest(results: list[MatchResult]) -> int:
-    """Index of the result with a checked matching of lowest objective (the first when none has one)."""
+    """Index of the presentation kept: the cheapest checked matching if it undercuts the first's enough.
+
+    The first (the orientation search's choice) is kept unless another's objective is below
+    (1 - :data:`PRESENTATION_MARGIN`) times its own, or it has no checked matching.
+    """
     usable = [
         (result.solve.objective, index)
         for index, result in enumerate(results)
         if result.low_map is not None and (result.check is None or result.check.ok)
     ]
-    return min(usable)[1] if usable else 0
+    if not usable:
+        return 0
+    objective, index = min(usable)
+    first = results[0]
+    if first.low_map is None or (first.check is not None and not first.check.ok):
+        return index
+    return index if objective < (1.0 - PRESENTATION_MARGIN) * first.solve.objective else 0
 
 
 def _presentation_row(label: str, result: MatchResult, chosen: bool) -> dict:

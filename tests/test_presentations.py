@@ -121,3 +121,17 @@ def test_a_bad_number_of_presentations_is_refused_naming_the_option(value):
         check_options(composed("match", [f"part_presentations={value}"]))
     with pytest.raises(OptionError, match="part_presentations"):
         pipeline.check_settings(spidermatch.MatchSettings(part_presentations=0))
+
+
+def test_another_presentation_is_kept_only_when_it_undercuts_the_first_by_the_margin():
+    from types import SimpleNamespace
+
+    def solved(objective):
+        return SimpleNamespace(low_map=np.zeros(3), check=None, solve=SimpleNamespace(objective=objective))
+
+    unsolved = SimpleNamespace(low_map=None, check=None, solve=SimpleNamespace(objective=float("inf")))
+    just_below = 10.0 * (1.0 - pipeline.PRESENTATION_MARGIN) * 1.01
+    assert pipeline._cheapest([solved(10.0), solved(just_below)]) == 0  # within the margin: the search's
+    assert pipeline._cheapest([solved(10.0), solved(just_below * 0.97), solved(9.5)]) == 1
+    assert pipeline._cheapest([unsolved, solved(12.0), solved(11.0)]) == 2  # the first has no matching
+    assert pipeline._cheapest([unsolved, unsolved]) == 0
