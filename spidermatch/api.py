@@ -394,9 +394,8 @@ def match(
     if overlap:  # only the source region with a partner is matched, as a part of the target
         piece = source_overlap_piece(source_mesh, target_mesh, feat_x, feat_y)
         feat_x = feat_x[piece.to_original]
-    matched_source = source_mesh if piece is None else piece.mesh
-    if piece is not None:
         options = [("", feat_x)]
+    matched_source = source_mesh if piece is None else piece.mesh
     result = match_presentations(matched_source, target_mesh, options, feat_y, run_settings)
     result.pair = kind
     if strict:
@@ -497,7 +496,7 @@ def on_whole_target(matching: Matching, piece: PartialShape) -> Matching:
 def mesh_of(shape, role: str, repair: bool) -> tuple[Mesh, Repair | None, Weld | None]:
     """``shape`` as a validated Mesh, its repair and its weld (None where not needed).
 
-    A mesh whose boundary vertices repeat positions (an STL file, a triangle soup, seams split
+    A mesh whose faces meet on edges by position only (an STL file, a triangle soup, seams split
     by an exporter) is matched welded (:mod:`spidermatch.geometry.weld`) when the welded mesh
     is valid, or when neither it nor the mesh as given is (then it is the welded mesh that is
     refused or repaired). With ``repair``, an invalid mesh's largest clean piece is matched;

@@ -50,9 +50,8 @@ class MatchInputs:
     overlap: bool = False
     piece_of: tuple | None = None  # (vertex ids (V,), face ids (F,)) of ``source`` in the user's source
     target_of: tuple | None = None  # (vertex ids, face ids, vertex count) of a repaired target in the user's
-    source_weld: Weld | None = (
-        None  # the user's source had repeated vertices, welded (outputs name the file's)
-    )
+    # a user's mesh with repeated vertices, matched welded (the files name the file's vertices)
+    source_weld: Weld | None = None
     target_weld: Weld | None = None
 
 
