@@ -25,7 +25,6 @@ import numpy as np
 from spidermatch import defaults
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
 from spidermatch.feature_transfer import pair_features as capped_pair_features
-from spidermatch.feature_transfer import part_feature_options as capped_part_feature_options
 from spidermatch.geometry.mesh import Mesh, MeshError, is_validated, make_mesh
 from spidermatch.geometry.overlap import estimated_overlap, overlap_part
 from spidermatch.geometry.partial import (
@@ -364,7 +363,7 @@ def match(
         Bad meshes or features, with a message naming the mesh and the problem.
 
     """
-    from spidermatch.pipeline import MatchSettings, match_presentations
+    from spidermatch.pipeline import match as run_pipeline
 
     raise_problems([feature_cap_problem(features_max_vertices, "features_max_vertices")])
     source_mesh, repaired, source_weld = mesh_of(source, "source", repair)
@@ -379,11 +378,14 @@ def match(
     kind = recognised_pair(source_mesh, target_mesh, partial)
     started = time.perf_counter()
     overlap = kind.mode == "overlap"
-    count = settings.part_presentations if settings is not None else MatchSettings.part_presentations
-    options, feat_y, name = _feature_options(
-        features, source_mesh, target_mesh, features_max_vertices or None, kind.mode, count
+    feat_x, feat_y, name = pair_features(
+        features,
+        source_mesh,
+        target_mesh,
+        features_max_vertices or None,
+        partial=kind.mode == "partial",
+        overlap=overlap,
     )
-    feat_x = options[0][1]
     feature_time = time.perf_counter() - started
     if name == "wks":
         logger.info("features: WKS. %s", BETTER_FEATURES_HINT)
@@ -394,9 +396,8 @@ def match(
     if overlap:  # only the source region with a partner is matched, as a part of the target
         piece = source_overlap_piece(source_mesh, target_mesh, feat_x, feat_y)
         feat_x = feat_x[piece.to_original]
-        options = [("", feat_x)]
     matched_source = source_mesh if piece is None else piece.mesh
-    result = match_presentations(matched_source, target_mesh, options, feat_y, run_settings)
+    result = run_pipeline(matched_source, target_mesh, feat_x, feat_y, run_settings)
     result.pair = kind
     if strict:
         result.raise_for_status()
@@ -408,28 +409,6 @@ def match(
     if target_repaired is not None:
         matching = on_whole_target(matching, target_repaired.piece)
     return on_file_vertices(matching, source_weld, target_weld)
-
-
-def _feature_options(features, source: Mesh, target: Mesh, cap: int | None, mode: str, count: int):
-    """The source's features in each presentation to match, the target's, and the features' name.
-
-    A part (``mode`` "partial") and an extractor with an orientation search give up to
-    ``count`` presentations (:func:`spidermatch.feature_transfer.part_feature_options`);
-    anything else one, :func:`pair_features`'s.
-
-    Returns
-    -------
-    options : list of (str, np.ndarray (V_src, D))
-    target_features : np.ndarray, shape (V_tgt, D)
-    name : str
-    """
-    if mode == "partial" and count > 1 and hasattr(features, "part_feature_options"):
-        options, feat_y = capped_part_feature_options(features, source, target, count, cap)
-        return options, feat_y, str(getattr(features, "name", type(features).__name__))
-    feat_x, feat_y, name = pair_features(
-        features, source, target, cap, partial=mode == "partial", overlap=mode == "overlap"
-    )
-    return [("", feat_x)], feat_y, name
 
 
 def on_file_vertices(matching: Matching, source_weld: Weld | None, target_weld: Weld | None) -> Matching:

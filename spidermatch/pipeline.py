@@ -129,10 +129,6 @@ class MatchSettings:
         Match whole shapes on copies with their small holes (a scanner's) closed by fans
         (:mod:`spidermatch.geometry.holes`); every map is told on the meshes as given. A part
         (``partial``) is matched as it is, its whole target closed.
-    part_presentations : int
-        A part (``partial``) is matched in this many of its best presentations to a network
-        with an orientation search, and the matching of lowest cost is kept
-        (:func:`match_presentations`); 1: only the best-scored presentation.
 
     """
 
@@ -150,7 +146,6 @@ class MatchSettings:
     dense: DenseSettings | None = field(default_factory=DenseSettings)
     partial: bool = False
     close_small_holes: bool = bool(defaults.option("curve/default", "close_small_holes"))
-    part_presentations: int = int(defaults.match_option("part_presentations"))
 
 
 @dataclass(eq=False)
@@ -185,12 +180,6 @@ class MatchResult:
         (``MatchSettings.close_small_holes``), None for a mesh matched as given. ``source``,
         ``target`` and the curve belong to them; ``to_full``, the pairs and the dense map name
         only the given meshes' vertices.
-    presentations : list of dict
-        With several presentations of a part (:func:`match_presentations`): each one's
-        ``presentation`` (how the part was shown to the network), ``status``, ``objective``,
-        ``bound`` and ``solve_s``, and ``chosen`` (True for the one this result is). Empty otherwise.
-    presentation : int
-        Which of ``presentations`` this result is (0 without several).
 
     """
 
@@ -208,8 +197,6 @@ class MatchResult:
     quality: dict | None = None
     pair: PairKind | None = None
     closed: tuple = (None, None)
-    presentations: list = field(default_factory=list)
-    presentation: int = 0
 
     @property
     def dense_map(self) -> np.ndarray | None:
@@ -465,112 +452,6 @@ def match(
             result, source, target, (source_features, target_features), settings.dense, settings.partial
         )
     return result
-
-
-def match_presentations(
-    source: Mesh,
-    target: Mesh,
-    options: list[tuple[str, np.ndarray]],
-    target_features: np.ndarray,
-    settings: MatchSettings | None = None,
-) -> MatchResult:
-    """:func:`match` of a part in each of several presentations to the network; the cheapest is kept.
-
-    A network places a part by how it is shown (its orientation and place on the whole), and
-    the presentation its search scores best is sometimes the wrong side or region of the body
-    (docs/partial.md). Each of ``options`` is matched, and the matching of lowest objective
-    wins: the costs that a consistent matching explains best. Matchings without a checked
-    solution never win. The solver's ``time_limit`` is the budget of all of them: each gets
-    an equal share of what the earlier ones left.
-
-    Parameters
-    ----------
-    source, target : Mesh
-    options : list of (str, np.ndarray (V_X, D))
-        Each presentation's description and the source features in it, the search's best first.
-    target_features : np.ndarray, shape (V_Y, D)
-    settings : MatchSettings
-
-    Returns
-    -------
-    MatchResult
-        The chosen one (``presentation`` its index), with ``presentations`` filled in and, unless
-        ``settings.dense`` is None, its dense map.
-    """
-    settings = settings or MatchSettings()
-    if len(options) == 1:
-        return match(source, target, options[0][1], target_features, settings)
-    budget, results = settings.solver.time_limit, []
-    for index, (label, features) in enumerate(options):
-        share = max(budget - sum(r.timings.get("solve", 0.0) for r in results), 0.0) / (len(options) - index)
-        solver = dataclasses.replace(settings.solver, time_limit=max(share, MIN_PRESENTATION_SECONDS))
-        logger.info("presentation %d of %d (%s): solver budget %.0f s", index + 1, len(options), label, share)
-        results.append(match(source, target, features, target_features, _solo(settings, solver)))
-    chosen = _cheapest(results)
-    result = results[chosen]
-    others = sum(sum(r.timings.values()) for i, r in enumerate(results) if i != chosen)
-    result.timings["other_presentations"] = others  # their decimation, curve, costs and solve
-    result.presentation = chosen
-    result.presentations = [
-        _presentation_row(label, r, i == chosen) for i, ((label, _), r) in enumerate(zip(options, results))
-    ]
-    logger.info(
-        "presentations: objectives %s; kept %d (%s)",
-        ", ".join("-" if r.low_map is None else f"{r.solve.objective:.6g}" for r in results),
-        chosen + 1,
-        options[chosen][0],
-    )
-    if settings.dense is not None and result.low_map is not None:
-        add_dense_map(
-            result, source, target, (options[chosen][1], target_features), settings.dense, settings.partial
-        )
-    return result
-
-
-MIN_PRESENTATION_SECONDS = 1.0
-"""Least solver time a presentation gets, even when the earlier ones used the budget up."""
-
-
-def _solo(settings: MatchSettings, solver: SolverOptions) -> MatchSettings:
-    """``settings`` for one presentation: its solver share and no dense map (only the winner's)."""
-    return dataclasses.replace(settings, solver=solver, dense=None)
-
-
-PRESENTATION_MARGIN = 0.15
-"""A presentation other than the search's first is kept only if its matching costs less than the
-first's by more than this share (docs/partial.md, "Several presentations")."""
-
-
-def _cheapest(results: list[MatchResult]) -> int:
-    """Index of the presentation kept: the cheapest checked matching if it undercuts the first's enough.
-
-    The first (the orientation search's choice) is kept unless another's objective is below
-    (1 - :data:`PRESENTATION_MARGIN`) times its own, or it has no checked matching.
-    """
-    usable = [
-        (result.solve.objective, index)
-        for index, result in enumerate(results)
-        if result.low_map is not None and (result.check is None or result.check.ok)
-    ]
-    if not usable:
-        return 0
-    objective, index = min(usable)
-    first = results[0]
-    if first.low_map is None or (first.check is not None and not first.check.ok):
-        return index
-    return index if objective < (1.0 - PRESENTATION_MARGIN) * first.solve.objective else 0
-
-
-def _presentation_row(label: str, result: MatchResult, chosen: bool) -> dict:
-    solved = result.solve
-    return {
-        "presentation": label,
-        "status": solved.status,
-        "objective": None if result.low_map is None else float(solved.objective),
-        "bound": None if solved.bound is None or not np.isfinite(solved.bound) else float(solved.bound),
-        "solve_s": round(result.timings.get("solve", 0.0), 2),
-        "chosen": chosen,
-    }
 
 
 OPTIMAL_GAP = 1e-3

@@ -45,13 +45,6 @@ def feature_cap_problem(value, key: str = "features_max_vertices") -> str | None
     return f"{key}={show(value)}: must be a whole number of vertices >= {MIN_FEATURE_VERTICES} (0: no cap)"
 
 
-def presentations_problem(value, key: str = "part_presentations") -> str | None:
-    """Why ``value`` is not a usable number of presentations of a part (None if it is)."""
-    if is_whole(value) and value >= 1:
-        return None
-    return f"{key}={show(value)}: must be a whole number >= 1 (1: only the best-scored presentation)"
-
-
 def solver_problems(solver, strategies, prefix: str = "solver.") -> list[str]:
     """Problems with the ``solver`` option group (time_limit, mip_rel_gap, threads, presolve, ...).
 
@@ -179,7 +172,6 @@ def check_options(cfg) -> None:
     problems = [
         resolution_problem(cfg.get("resolution")),
         feature_cap_problem(cfg.get("features_max_vertices")),
-        presentations_problem(cfg.get("part_presentations", 1)),
     ]
     problems += solver_problems(cfg.solver, [AUTO, *strategy_names()])
     problems.append(constraints_problem(cfg.costs.get("constraints"), FAMILIES))
@@ -225,7 +217,7 @@ def check_settings(settings, solver_prefix: str = "solver.") -> None:
         "strategy": settings.strategy,
         "isolate": settings.isolate_solver,
     }
-    problems = [resolution_problem(settings.resolution), presentations_problem(settings.part_presentations)]
+    problems = [resolution_problem(settings.resolution)]
     problems += solver_problems(solver, strategy_names(), solver_prefix)
     problems.append(constraints_problem(settings.constraints, FAMILIES))
     if settings.decimation not in DECIMATIONS:

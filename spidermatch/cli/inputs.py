@@ -17,7 +17,7 @@ import numpy as np
 from spidermatch.api import BETTER_FEATURES_HINT, mesh_of
 from spidermatch.cli.settings import dense_settings
 from spidermatch.data.datasets import DatasetError, SyntheticShapes
-from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, pair_features, part_feature_options
+from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, pair_features
 from spidermatch.geometry.io import read_vts
 from spidermatch.geometry.mesh import Mesh, MeshError
 from spidermatch.geometry.partial import PairKind, announce_pair, original_faces, overlap_kind, pair_kind
@@ -249,26 +249,17 @@ def use_free_cores(torch) -> None:
         torch.set_num_threads(threads)
 
 
-def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray | list, np.ndarray, str, dict]:
+def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, str, dict]:
     """Features of both full-resolution (centred) meshes, the extractor's name, and how they were made.
 
     The last item (for ``result.json``) names the meshes whose features were computed on a
     capped copy (``computed_on_vertices``) and how an orientation search presented each mesh.
-    A part matched in several presentations (``part_presentations``, an extractor with an
-    orientation search) gets a list of (description, features (V_X, D)) as the first item,
-    the search's best first (:func:`spidermatch.pipeline.match_presentations`).
     """
     extractor = make_extractor(cfg)
     name = getattr(extractor, "name", type(extractor).__name__)
     if name == "wks":
         logger.info("features: WKS (no trained checkpoint given). %s", BETTER_FEATURES_HINT)
     capped = {}
-    count = int(cfg.get("part_presentations", 1))
-    if inputs.partial and count > 1 and hasattr(extractor, "part_feature_options"):
-        options, feat_y = part_feature_options(
-            extractor, inputs.source, inputs.target, count, feature_cap(cfg), capped
-        )
-        return options, feat_y, name, feature_details(extractor, capped)
     feat_x, feat_y = pair_features(
         extractor,
         inputs.source,

@@ -33,7 +33,7 @@ from spidermatch.cli.outputs import (
     write_pngs,
 )
 from spidermatch.cli.settings import settings_from_config
-from spidermatch.pipeline import MatchError, add_dense_map, match_presentations
+from spidermatch.pipeline import MatchError, add_dense_map, match
 from spidermatch.validate import (
     check_options,
 )
@@ -111,17 +111,8 @@ def run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) ->
         settings_from_config(cfg, inputs.resolution, feature_name), partial=inputs.partial
     )
     logger.info("solving strategy: %s", settings.strategy)
-    options = feat_x if isinstance(feat_x, list) else [("", feat_x)]
-    result = match_presentations(
-        inputs.source, inputs.target, options, feat_y, dataclasses.replace(settings, dense=None)
-    )
-    feat_x = options[result.presentation][1]
+    result = match(inputs.source, inputs.target, feat_x, feat_y, dataclasses.replace(settings, dense=None))
     report.update(result_summary(result, inputs, feature_name))
-    if result.presentations:  # a part matched in several presentations: the one kept is reported
-        report["presentations"] = result.presentations
-        shown = report.get("feature_inputs", {}).get("orientation", {})
-        if inputs.source.name in shown:
-            shown[inputs.source.name] = options[result.presentation][0]
     report["timings_s"] = {"features": round(feature_time, 3), **report["timings_s"]}
     try:
         result.raise_for_status()

@@ -77,12 +77,6 @@ def deciding_settings(config: dict, checkpoint: str | None) -> dict:
         "allow_topology_mismatch": bool(config.get("allow_topology_mismatch", False)),
         **changed_cap,
         **({"partial": config.get("partial")} if config.get("partial", "auto") != "auto" else {}),
-        # runs made before several presentations were matched had one
-        **(
-            {"part_presentations": presentations}
-            if (presentations := config.get("part_presentations", 1)) != 1
-            else {}
-        ),
     }
 
 

@@ -35,7 +35,6 @@ def settings_from_config(cfg, resolution: int, feature_name: str) -> MatchSettin
         strategy=strategy_for(str(solver.strategy), feature_name),
         isolate_solver=bool(solver.get("isolate", True)),
         dense=dense_settings(cfg),
-        part_presentations=int(cfg.get("part_presentations", MatchSettings.part_presentations)),
     )
 
 
