@@ -111,6 +111,8 @@ def chosen(presentations: list[dict], margin: float | None) -> dict:
 def rule_figures(runs: list[list[dict]], margin: float | None) -> dict:
     """Mean and median dense error, mean IoU and wrong maps of the presentations a rule keeps."""
     kept = [chosen(run, margin) for run in runs]
+    if not kept:
+        return {"runs": 0}
     errors = [row.get("dense_error", 1.0) for row in kept]  # no map: counted as wrong
     return {
         "runs": len(kept),

@@ -66,3 +66,21 @@ def test_a_part_gets_every_members_search_and_the_choices_are_reported_per_netwo
 def test_an_ensemble_of_one_is_refused(tiny_checkpoint):
     with pytest.raises(ValueError, match="at least two checkpoints, got 1"):
         EnsembleExtractor([tiny_checkpoint])
+
+
+def test_a_parts_presentations_start_with_the_one_part_features_gives(
+    tiny_checkpoint, second_checkpoint, creatures
+):
+    """``part_feature_options`` (for bench_presentations.py): its first option is ``part_features``'s."""
+    from spidermatch.feature_transfer import part_feature_options
+
+    whole = creatures[0]
+    part = plane_cut(whole, np.array([0.0, 1.0, 0.0]), 0.5, "half").mesh
+    for extractor in (
+        LearnedExtractor(tiny_checkpoint),
+        EnsembleExtractor([tiny_checkpoint, second_checkpoint]),
+    ):
+        options, feat_whole = part_feature_options(extractor, part, whole, 3)
+        feat_part, expected_whole = extractor.part_features(part.centred(), whole.centred())
+        assert 1 <= len(options) <= 3 and all(features.shape == feat_part.shape for _, features in options)
+        assert np.allclose(options[0][1], feat_part) and np.allclose(feat_whole, expected_whole)
