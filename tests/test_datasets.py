@@ -44,7 +44,7 @@ def test_write_and_read_folder_round_trip(tmp_path):
     flat = ShapeFolder(tmp_path / "off")  # the meshes may also lie in the folder itself
     assert flat.names == shapes.names and flat.load("creature_000").corr is None
     (tmp_path / "empty").mkdir()
-    with pytest.raises(DatasetError, match="empty: no .off/.obj/.ply shapes"):
+    with pytest.raises(DatasetError, match="empty: no .off/.obj/.ply/.stl shapes"):
         ShapeFolder(tmp_path / "empty")
     with pytest.raises(DatasetError, match="nowhere: no such folder"):
         ShapeFolder(tmp_path / "nowhere")
@@ -106,3 +106,20 @@ def test_a_vertex_near_a_touching_part_is_mapped_to_its_own_part():
     on_first_arm = strip.verts[first_arm]
     nearest_on_first = np.linalg.norm(points[:, None] - on_first_arm[None], axis=2).min(axis=1)
     np.testing.assert_allclose(np.linalg.norm(strip.verts[chosen] - points, axis=1), nearest_on_first)
+
+
+def test_a_dataset_folder_welds_an_stl_soup_and_tells_its_ground_truth_on_the_welded_mesh(tmp_path):
+    import trimesh
+
+    creature = make_creature(n_verts=500, seed=2).mesh
+    (tmp_path / "off").mkdir()
+    (tmp_path / "corres").mkdir()
+    trimesh.Trimesh(creature.verts, creature.faces, process=False).export(tmp_path / "off" / "scan.stl")
+    corners = creature.faces.reshape(-1)
+    truth = np.arange(0, creature.n_verts, 9)
+    first_corner = np.full(creature.n_verts, -1)
+    first_corner[corners[::-1]] = np.arange(corners.size)[::-1]
+    np.savetxt(tmp_path / "corres" / "scan.vts", first_corner[truth] + 1, fmt="%d")  # the file's corners
+    shape = ShapeFolder(tmp_path).load("scan")
+    assert shape.weld is not None and shape.mesh.n_verts == creature.n_verts
+    np.testing.assert_array_equal(shape.mesh.verts[shape.corr], creature.verts[truth].astype(np.float32))

@@ -192,7 +192,16 @@ def _dataset_inputs(dataset, source: str, target: str, resolution: int) -> Match
         check_ground_truth(x.corr, y.corr, dataset.corr_path(source), dataset.corr_path(target))
     else:
         check_ground_truth(x.corr, y.corr, f"{source} ground truth", f"{target} ground truth")
-    return MatchInputs(x.mesh, y.mesh, x.corr, y.corr, int(resolution), f"{source} -> {target}")
+    return MatchInputs(
+        x.mesh,
+        y.mesh,
+        x.corr,
+        y.corr,
+        int(resolution),
+        f"{source} -> {target}",
+        source_weld=getattr(x, "weld", None),  # files of soups: outputs name their own vertices
+        target_weld=getattr(y, "weld", None),
+    )
 
 
 def _plot_run(run_dir: Path, label: str) -> None:

@@ -19,7 +19,8 @@ import numpy as np
 
 from spidermatch.data.synthetic import fibonacci_sphere, make_creature
 from spidermatch.geometry.io import MESH_SUFFIXES, load_mesh, read_vts, save_mesh, write_vts
-from spidermatch.geometry.mesh import Mesh, MeshError
+from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
+from spidermatch.geometry.weld import Weld, welded
 
 logger = logging.getLogger(__name__)
 
@@ -38,12 +39,17 @@ class Shape:
     mesh : Mesh
     corr : np.ndarray, shape (K,), or None
         0-based vertex of each shared reference point, if ground truth is known.
+    weld : Weld or None
+        When the file was a triangle soup (an STL file, a vertex per corner) and ``mesh`` is
+        it welded (:mod:`spidermatch.geometry.weld`): how the file's vertices lie in ``mesh``
+        (``corr`` is already told in ``mesh``'s vertices).
 
     """
 
     name: str
     mesh: Mesh
     corr: np.ndarray | None = None
+    weld: Weld | None = None
 
 
 def all_ordered_pairs(names: list[str]) -> list[tuple[str, str]]:
@@ -114,7 +120,7 @@ class ShapeFolder:
         self._files = mesh_files(mesh_dir)
         if not self._files:
             raise DatasetError(
-                f"{mesh_dir}: no .off/.obj/.ply shapes found (looked in 'off/', else in the folder itself)"
+                f"{mesh_dir}: no .off/.obj/.ply/.stl shapes found (looked in 'off/', else in the folder)"
             )
         self.names = sorted(self._files)
 
@@ -135,14 +141,33 @@ class ShapeFolder:
         """Load one shape and its ground truth (``corr`` is None if no .vts file exists)."""
         if name not in self._files:
             raise DatasetError(f"{self.root}: no shape named {name!r}")
-        mesh = load_mesh(self._files[name])
+        mesh, weld = _mesh_or_welded(self._files[name])
         corr_file = self.corr_path(name)
-        corr = read_vts(corr_file, mesh.n_verts) if corr_file.is_file() else None
-        return Shape(name, mesh, corr)
+        if not corr_file.is_file():
+            return Shape(name, mesh, None, weld)
+        if weld is None:
+            return Shape(name, mesh, read_vts(corr_file, mesh.n_verts))
+        return Shape(name, mesh, weld.to_welded[read_vts(corr_file, weld.n_file)], weld)
 
     def pairs(self, pairs_file: str | os.PathLike | None = None) -> list[tuple[str, str]]:
         """Pairs from ``pairs_file`` or, without one, all ordered pairs."""
         return read_pairs_file(pairs_file, self.names) if pairs_file else all_ordered_pairs(self.names)
+
+
+def _mesh_or_welded(path: Path) -> tuple[Mesh, Weld | None]:
+    """The mesh of ``path``, or, if it is no valid surface but welded would be, it welded."""
+    try:
+        return load_mesh(path), None
+    except MeshError as error:
+        weld = welded(load_mesh(path, validate=False))
+        if weld is None:
+            raise
+        try:
+            mesh = make_mesh(weld.mesh.verts, weld.mesh.faces, weld.mesh.name, weld.mesh.notes)
+        except MeshError:
+            raise error from None
+        logger.warning("%s", weld.note)
+        return mesh, weld
 
 
 class SyntheticShapes:

@@ -67,8 +67,7 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
         repeats = weld.n_file - weld.mesh.n_verts
         raise MeshError(
             f"{error}; {repeats} of its vertices repeat the position of another (a triangle soup, as "
-            "STL stores it): spidermatch-match and spidermatch.match weld them, files read for "
-            "training or evaluation must be welded first (e.g. trimesh's merge_vertices)"
+            "STL stores it): matching and dataset folders weld them (spidermatch.geometry.weld)"
         ) from None
 
 
