@@ -89,7 +89,7 @@ def test_bad_folders_are_refused_naming_the_problem(tmp_path):
     with pytest.raises(MeshError, match="zz_bad.off"):
         train(folder_config(tmp_path / "broken"), tmp_path / "run2")
     (tmp_path / "empty").mkdir()
-    with pytest.raises(DatasetError, match="empty: no .off/.obj/.ply/.stl shapes"):
+    with pytest.raises(DatasetError, match="empty: no mesh files"):
         train(folder_config(tmp_path / "empty"), tmp_path / "run3")
 
 

@@ -195,3 +195,13 @@ def test_a_sliver_facet_in_a_soup_is_left_to_the_repair(tmp_path):
     assert weld is not None and repaired is not None
     assert mesh.n_verts == sphere.n_verts and mesh.n_faces == sphere.n_faces  # the body, whole
     assert topology(mesh).boundaries == 0
+
+
+def test_a_glb_file_is_read_and_its_split_vertices_welded(tmp_path, creature):
+    """glTF stores a vertex per corner where normals or texture coordinates differ: welded like a soup."""
+    soup = soup_of(creature)
+    trimesh.Trimesh(soup.verts, soup.faces, process=False).export(tmp_path / "scan.glb")
+    read = load_mesh(tmp_path / "scan.glb", validate=False)
+    assert read.n_faces == creature.n_faces and np.allclose(read.verts, soup.verts, atol=1e-6)
+    mesh, _, weld = mesh_of(str(tmp_path / "scan.glb"), "source", repair=False)
+    assert weld is not None and mesh.n_verts == creature.n_verts

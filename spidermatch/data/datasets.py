@@ -120,7 +120,8 @@ class ShapeFolder:
         self._files = mesh_files(mesh_dir)
         if not self._files:
             raise DatasetError(
-                f"{mesh_dir}: no .off/.obj/.ply/.stl shapes found (looked in 'off/', else in the folder)"
+                f"{mesh_dir}: no mesh files ({'/'.join(MESH_SUFFIXES)}) found "
+                "(looked in 'off/', else in the folder)"
             )
         self.names = sorted(self._files)
 

@@ -1,4 +1,4 @@
-"""Reading and writing meshes (.off, .obj, .ply) and correspondence files (.vts)."""
+"""Reading and writing meshes (.off, .obj, .ply, .stl, .glb, .gltf) and correspondence files (.vts)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,9 @@ from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
 
 logger = logging.getLogger(__name__)
 
-MESH_SUFFIXES = (".off", ".obj", ".ply", ".stl")
+MESH_SUFFIXES = (".off", ".obj", ".ply", ".stl", ".glb", ".gltf")
+WRITABLE_SUFFIXES = (".off", ".obj", ".ply", ".stl", ".glb")
+"""Mesh types :func:`save_mesh` writes (a .gltf would need its .bin beside it)."""
 
 
 def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
@@ -21,8 +23,9 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
     Parameters
     ----------
     path : str or PathLike
-        A ``.off``, ``.obj``, ``.ply`` or ``.stl`` file (an STL's vertices are its facets'
-        corners in file order, three per facet).
+        A ``.off``, ``.obj``, ``.ply``, ``.stl``, ``.glb`` or ``.gltf`` file (an STL's vertices
+        are its facets' corners in file order, three per facet; a glTF scene's meshes are
+        joined with their transforms applied, their vertices in order).
     validate : bool
         Run :func:`spidermatch.geometry.mesh.validate_mesh` (recommended).
 
@@ -282,11 +285,11 @@ def _read_with_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def save_mesh(mesh: Mesh, path: str | os.PathLike) -> None:
-    """Write a mesh; the type follows the suffix (.off, .obj, .ply). Vertex order is kept."""
+    """Write a mesh; the type follows the suffix (``WRITABLE_SUFFIXES``). Vertex order is kept."""
     import trimesh
 
     path = Path(path)
-    if path.suffix.lower() not in MESH_SUFFIXES:
+    if path.suffix.lower() not in WRITABLE_SUFFIXES:
         raise MeshError(f"{path}: unsupported mesh type '{path.suffix}'")
     path.parent.mkdir(parents=True, exist_ok=True)
     trimesh.Trimesh(mesh.verts, mesh.faces, process=False).export(str(path))
