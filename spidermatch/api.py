@@ -499,7 +499,10 @@ def mesh_of(shape, role: str, repair: bool) -> tuple[Mesh, Repair | None, Weld |
             mesh, repaired = _checked_or_repaired(weld.mesh, role, repair, weld.mesh)
         except MeshError as error:
             repeats = weld.n_file - weld.mesh.n_verts
-            raise MeshError(f"{error} (read with its {repeats} repeated vertices welded)") from None
+            raise MeshError(
+                f"{error} (read with its {repeats} repeated vertices welded; vertex numbers count the "
+                "welded vertices in the order they first appear in the file, face numbers are the file's)"
+            ) from None
         if repaired is not None:
             mesh = dataclasses.replace(mesh, notes=(weld.note, *mesh.notes))
         logger.warning("%s", weld.note)
