@@ -199,8 +199,8 @@ def _dataset_inputs(dataset, source: str, target: str, resolution: int) -> Match
         y.corr,
         int(resolution),
         f"{source} -> {target}",
-        source_weld=getattr(x, "weld", None),  # files of soups: outputs name their own vertices
-        target_weld=getattr(y, "weld", None),
+        source_weld=x.weld,  # files of soups: outputs name their own vertices
+        target_weld=y.weld,
     )
 
 

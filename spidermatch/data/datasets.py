@@ -20,7 +20,7 @@ import numpy as np
 from spidermatch.data.synthetic import fibonacci_sphere, make_creature
 from spidermatch.geometry.io import MESH_SUFFIXES, load_mesh, read_vts, save_mesh, write_vts
 from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
-from spidermatch.geometry.weld import Weld, welded
+from spidermatch.geometry.weld import Weld, soup_refusal, welded
 
 logger = logging.getLogger(__name__)
 
@@ -156,17 +156,22 @@ class ShapeFolder:
 
 
 def _mesh_or_welded(path: Path) -> tuple[Mesh, Weld | None]:
-    """The mesh of ``path``, or, if it is no valid surface but welded would be, it welded."""
+    """The mesh of ``path``, or, if it is no valid surface but welded would be, it welded.
+
+    The file is read and welded once; a mesh valid neither way is refused with the error of
+    the mesh as given (and the soup hint :func:`spidermatch.geometry.io.load_mesh` gives).
+    """
+    given = load_mesh(path, validate=False)
     try:
-        return load_mesh(path), None
+        return make_mesh(given.verts, given.faces, given.name, given.notes), None
     except MeshError as error:
-        weld = welded(load_mesh(path, validate=False))
+        weld = welded(given)
         if weld is None:
             raise
         try:
             mesh = make_mesh(weld.mesh.verts, weld.mesh.faces, weld.mesh.name, weld.mesh.notes)
         except MeshError:
-            raise error from None
+            raise MeshError(soup_refusal(error, weld)) from None
         logger.warning("%s", weld.note)
         return mesh, weld
 

@@ -62,16 +62,12 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
     try:
         return make_mesh(verts, faces, name, notes)
     except MeshError as error:
-        from spidermatch.geometry.weld import welded
+        from spidermatch.geometry.weld import soup_refusal, welded
 
         weld = welded(Mesh(verts, faces, name, notes))
         if weld is None:
             raise
-        repeats = weld.n_file - weld.mesh.n_verts
-        raise MeshError(
-            f"{error}; {repeats} of its vertices repeat the position of another (a triangle soup, as "
-            "STL stores it): matching and dataset folders weld them (spidermatch.geometry.weld)"
-        ) from None
+        raise MeshError(soup_refusal(error, weld)) from None
 
 
 def _text_of(path: Path) -> str:

@@ -236,6 +236,15 @@ def _pairings(items: list) -> list:
     ]
 
 
+def soup_refusal(error: Exception, weld: Weld) -> str:
+    """``error`` (the mesh as given refused) with the hint that its repeated vertices could be welded."""
+    repeats = weld.n_file - weld.mesh.n_verts
+    return (
+        f"{error}; {repeats} of its vertices repeat the position of another (a triangle soup, as "
+        "STL stores it): matching and dataset folders weld them (spidermatch.geometry.weld)"
+    )
+
+
 def weld_note(name: str, n_file: int, n_welded: int) -> str:
     """The warning that ``name``'s ``n_file`` vertices were matched as ``n_welded``."""
     return (
