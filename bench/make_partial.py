@@ -1,11 +1,17 @@
 """Cut shapes of a FAUST_r-style dataset into partial ones with exact ground truth.
 
 For every listed shape and every cut kind (plane cuts, geodesic holes, single views from a
-random camera; :mod:`spidermatch.geometry.partial`) one partial copy keeping 30-70 % of the area is
-written, from a fixed seed so that the figures built on them repeat::
+random camera; :mod:`spidermatch.geometry.partial`) one partial copy keeping 30-70 % of the area
+(``--keep``) is written, from a fixed seed so that the figures built on them repeat::
 
     python bench/make_partial.py --data ../shared/data/FAUST_r --shapes tr_reg_070..tr_reg_079 \\
         --out runs/partial_faust
+
+Large parts, as a scan with the feet cut off by the floor or a few holes (a single view never
+keeps that much)::
+
+    python bench/make_partial.py --data ../shared/data/FAUST_r --shapes tr_reg_070..tr_reg_079 \\
+        --kinds plane holes --keep 0.7 0.95 --out runs/partial_faust_large
 
 The output folder holds ``off/<shape>-<kind>.off`` (the part), ``maps/<shape>-<kind>.npy``
 (the original vertex of every kept vertex: the exact ground truth) and ``partial.json``
@@ -40,7 +46,14 @@ def shape_names(folder: ShapeFolder, spec: str) -> list[str]:
     return spec.split(",")
 
 
-def write_parts(folder: ShapeFolder, names: list[str], kinds: list[str], out: Path, seed: int) -> list[dict]:
+def write_parts(
+    folder: ShapeFolder,
+    names: list[str],
+    kinds: list[str],
+    out: Path,
+    seed: int,
+    keep: tuple[float, float] = (0.3, 0.7),
+) -> list[dict]:
     """Write one partial copy of every shape per kind; returns the manifest rows."""
     (out / "off").mkdir(parents=True, exist_ok=True)
     (out / "maps").mkdir(parents=True, exist_ok=True)
@@ -49,7 +62,7 @@ def write_parts(folder: ShapeFolder, names: list[str], kinds: list[str], out: Pa
         mesh = folder.load(name).mesh
         for kind in kinds:
             rng = np.random.default_rng([seed, zlib.crc32(f"{name}-{kind}".encode())])
-            part = random_cut(mesh, kind, rng, name=f"{name}-{kind}")
+            part = random_cut(mesh, kind, rng, keep, name=f"{name}-{kind}")
             save_mesh(part.mesh, out / "off" / f"{name}-{kind}.off")
             np.save(out / "maps" / f"{name}-{kind}.npy", part.to_original)
             row = {
@@ -71,11 +84,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--kinds", nargs="+", default=list(CUT_KINDS), choices=CUT_KINDS)
     parser.add_argument("--out", required=True, type=Path)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--keep", type=float, nargs=2, default=(0.3, 0.7), metavar=("LOW", "HIGH"), help="kept area share"
+    )
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     folder = ShapeFolder(args.data)
-    rows = write_parts(folder, shape_names(folder, args.shapes), args.kinds, args.out, args.seed)
-    manifest = {"data": args.data, "seed": args.seed, "parts": rows}
+    names = shape_names(folder, args.shapes)
+    rows = write_parts(folder, names, args.kinds, args.out, args.seed, tuple(args.keep))
+    manifest = {"data": args.data, "seed": args.seed, "keep": list(args.keep), "parts": rows}
     (args.out / "partial.json").write_text(json.dumps(manifest, indent=2) + "\n")
     print(f"wrote {len(rows)} partial shapes to {args.out}")
     return 0
