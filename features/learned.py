@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
+from features.diffusion_net import XYZ_CHANNELS, DiffusionNet, ModelConfig, ShapeInput, prepare_shape
 from features.fmap import FmapLossConfig, fmap_terms
 from features.orientation import (
     COORDINATE_INPUTS,
@@ -35,6 +35,7 @@ from features.orientation import (
 )
 from features.wks import normalise_rows
 from spidermatch.geometry.mesh import Mesh, MeshError
+from spidermatch.geometry.partial import fitted_scale
 
 logger = logging.getLogger(__name__)
 
@@ -361,20 +362,17 @@ class LearnedExtractor:
         self, part: Mesh, feat_other: np.ndarray, other_points: np.ndarray, unit_area: float, count: int
     ) -> list[tuple[str, np.ndarray]]:
         """``part``'s descriptors in its ``count`` best presentations on the other shape (see _part_onto)."""
-        shape = prepare_shape(part, self.config, use_cache=self.use_cache, scale_area=unit_area)
         if self.orientation is None:
             presentations = [UNTURNED]
         else:
-            probe = probe_input(part, self.config, self.train_faces, self.use_cache, scale_area=unit_area)
-            ranked = self.orientation.ranked_for_part(
-                self.network, probe, torch.from_numpy(feat_other).float(), other_points / np.sqrt(unit_area)
-            )
-            presentations = ranked[: max(1, count)]
+            presentations = self._ranked_for_part(part, feat_other, other_points, unit_area)[: max(1, count)]
             self.orientations[part.name] = presentations[0]
             if presentations[0].degrees != 0.0 or any(presentations[0].offset):
                 logger.info(
                     "%s: input %s (orientation search for a part)", part.name, presentations[0].describe()
                 )
+        shown_area = unit_area / presentations[0].size ** 2  # shown at its size: in a smaller unit
+        shape = prepare_shape(part, self.config, use_cache=self.use_cache, scale_area=shown_area)
         options = []
         with torch.no_grad():
             for presentation in presentations:
@@ -382,6 +380,40 @@ class LearnedExtractor:
                 features = self.network(shown.features, shown.ops).double().numpy()
                 options.append((presentation.describe(), normalise_rows(features)))
         return options
+
+    def _ranked_for_part(
+        self, part: Mesh, feat_other: np.ndarray, other_points: np.ndarray, unit_area: float
+    ) -> list[Orientation]:
+        """The orientation search's presentations of ``part`` on the other shape, best first.
+
+        A part with more area than its whole (``unit_area``) cannot be of the whole's size: it
+        comes from a larger body (docs/partial.md, "A part larger than its whole"). Its size
+        relative to the whole is then read from its best presentation's feature partners
+        (:func:`spidermatch.geometry.partial.fitted_scale`; at most what leaves it the whole's
+        area), and the search is run again with the part shown at that size.
+        """
+        whole = torch.from_numpy(feat_other).float()
+        probe = probe_input(part, self.config, self.train_faces, self.use_cache, scale_area=unit_area)
+        whole_points = other_points / np.sqrt(unit_area)
+        ranked = self.orientation.ranked_for_part(self.network, probe, whole, whole_points)
+        if part.area <= unit_area:
+            return ranked
+        with torch.no_grad():
+            out = self.network(presented_input(probe, ranked[0]).features, probe.ops)
+            partners = (torch.nn.functional.normalize(out, dim=-1) @ whole.T).argmax(dim=1).numpy()
+        points = probe.features[:, -XYZ_CHANNELS:].double().numpy()
+        size = fitted_scale(points, whole_points[partners])
+        size = min(size, float(np.sqrt(unit_area / part.area)))
+        logger.info(
+            "%s has %.2f times the area of its whole: shown at %.3f times its given size",
+            part.name,
+            part.area / unit_area,
+            size,
+        )
+        shown_area = unit_area / size**2
+        probe = probe_input(part, self.config, self.train_faces, self.use_cache, scale_area=shown_area)
+        ranked = self.orientation.ranked_for_part(self.network, probe, whole, whole_points)
+        return [dataclasses.replace(presentation, size=size) for presentation in ranked]
 
     def adapt(self, mesh_x: Mesh, mesh_y: Mesh) -> DiffusionNet:
         """A copy of the network fine-tuned for ``adapt_steps`` Adam steps on this pair."""

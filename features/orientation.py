@@ -120,11 +120,14 @@ class Orientation:
     ``degrees`` is the turn about the vertical axis for those candidates, None for the
     principal-axis alignments. ``offset`` (3,) moves a part's rotated coordinates, so that it
     is shown where on its whole it lies (:func:`placement_offsets`); (0, 0, 0) for whole shapes.
+    ``size``: the part was shown at this many times its given size (a part with more area than
+    its whole, ``features.learned.LearnedExtractor.part_feature_options``); 1 otherwise.
     """
 
     rotation: torch.Tensor
     degrees: float | None
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    size: float = 1.0
 
     def describe(self) -> str:
         """How the input was presented, for logs."""
@@ -138,6 +141,8 @@ class Orientation:
             )
         if any(self.offset):
             said += ", its centre placed at ({:.2f}, {:.2f}, {:.2f}) from the whole's".format(*self.offset)
+        if self.size != 1.0:
+            said += f", shown at {self.size:.3f} times its given size"
         return said
 
 

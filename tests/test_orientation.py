@@ -13,6 +13,7 @@ from features.learned import CheckpointError, LearnedExtractor, read_checkpoint
 from features.orientation import OrientationSearch, reference_payload, turn_about_vertical
 from spidermatch.data.synthetic import make_creature
 from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.partial import plane_cut
 from spidermatch.geometry.remesh import decimate
 from train.losses import LossConfig
 
@@ -249,3 +250,22 @@ def test_the_ranked_presentations_of_a_part_start_with_the_best_one(creature):
     assert len({presentation.degrees for presentation in ranked}) == PLACED_ORIENTATIONS  # one per turn
     best = search.best_for_part(net, part, whole, whole_points)
     assert best.degrees == ranked[0].degrees == 0.0 and best.offset == ranked[0].offset
+
+
+def test_a_part_with_more_area_than_its_whole_is_shown_at_its_size_read_from_the_features(tmp_path, creature):
+    """A part cannot have more area than its whole: it comes from a larger body, and is shown to the
+    network at the size its feature partners say (never above the whole's area); a part of
+    plausible area is shown as given."""
+    whole = creature
+    part = plane_cut(whole, np.array([0.0, 1.0, 0.0]), 0.85, "tall").mesh
+    _checkpoint_with_reference(tmp_path / "a.pt", whole)
+    extractor = LearnedExtractor(str(tmp_path / "a.pt"), use_cache=False)
+    assert extractor.orientation is not None
+    extractor.part_features(part, whole)
+    assert extractor.orientations["tall"].size == 1.0
+    larger = Mesh(part.verts * 1.3, part.faces, "tall")
+    feat_part, _ = extractor.part_features(larger, whole)
+    size = extractor.orientations["tall"].size
+    assert size <= np.sqrt(whole.area / larger.area) + 1e-12 and size != 1.0
+    assert "times its given size" in extractor.orientations["tall"].describe()
+    assert feat_part.shape[0] == larger.n_verts

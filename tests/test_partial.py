@@ -16,8 +16,10 @@ from spidermatch.geometry.descriptors import WKSExtractor
 from spidermatch.geometry.io import load_mesh, save_mesh
 from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh, topology
 from spidermatch.geometry.partial import (
+    MAX_PART_AREA_RATIO,
     MIN_PART_SHARE,
     covered_target,
+    fitted_scale,
     holes_cut,
     mean_edge_length,
     overlap_kind,
@@ -97,6 +99,20 @@ def test_a_part_is_recognised_and_other_topology_differences_refused(creature):
         pair_kind(enlarged, creature)
 
 
+def test_a_large_part_of_a_larger_body_is_a_part_not_a_whole_shape(creature):
+    """A 85 % scan of a body 1.2 times the target's size has more area than the target (FAUST_r's
+    bodies differ that much); it is still a part, with a caution, up to MAX_PART_AREA_RATIO."""
+    part = plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.85, "tall.off").mesh
+    for size in (1.2, 1.35):
+        larger = Mesh(part.verts * size, part.faces, "tall.off")
+        kind = pair_kind(larger, creature)
+        assert kind.mode == "partial" and 1.0 < kind.area_ratio < MAX_PART_AREA_RATIO
+        assert "larger body in the same unit" in kind.caution
+    beyond = Mesh(part.verts * 1.6, part.faces, "tall.off")  # 2.2 times the area: no body differs that much
+    with pytest.raises(MeshError, match="same unit"):
+        pair_kind(beyond, creature)
+
+
 def test_a_part_in_another_unit_than_its_whole_is_refused_with_the_likely_factor(creature):
     part = plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.5, "part_m.off").mesh
     in_millimetres = Mesh(creature.verts * 1000.0, creature.faces, "whole_mm.off")
@@ -146,6 +162,18 @@ def test_the_rigid_fit_residual_tells_a_moved_copy_from_scrambled_partners(creat
     assert rigid_fit_residual(points, mirrored) > 0.05 * spread
     scrambled = moved[np.random.default_rng(1).permutation(points.shape[0])]
     assert rigid_fit_residual(points, scrambled) > 0.5 * spread
+
+
+def test_the_fitted_scale_reads_a_size_through_wrong_partners_and_a_turn(creature):
+    points = creature.verts
+    angle = 1.0
+    turn = np.array(
+        [[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]]
+    )
+    for size in (0.8, 1.0, 1.25):
+        partners = size * points @ turn.T + np.array([1.0, 2.0, -3.0])
+        partners[::4] = partners[np.random.default_rng(0).permutation(points.shape[0])[::4]]
+        assert fitted_scale(points, partners) == pytest.approx(size, rel=1e-9)
 
 
 def test_cut_consistency_prefers_features_that_find_each_vertex_of_the_part():

@@ -312,6 +312,17 @@ At the default 1000 target faces, 1 % of the area is 10 faces of the target's ed
 part that small cannot be matched, and a source that looks that small is more likely given
 in millimetres against a target in metres (a factor of 10^-6 in area)."""
 
+MAX_PART_AREA_RATIO = 2.0
+"""The largest ratio of a partial source's area to its whole target's (:func:`pair_kind`).
+
+A part has less area than its own whole, but a user's part often comes from another body than
+the target (a tall person's scan against a template): FAUST_r's 80 bodies differ up to 1.88-fold
+in area (its poses 7 and 9 are also scaled down, 1.18-fold in length), so a 85 % part of one
+body has 1.2 times the area of another. Refusing those, or matching them as two whole shapes,
+laid them wrong (docs/partial.md, "A part larger than its whole"). The smallest mix-up of
+common units is 2.54-fold in length (6.45 in area), so below this ratio the source is read as a
+part of a larger body in the same unit, with a caution naming the unit mix-ups it could be."""
+
 MAX_PARTS_AREA_RATIO = 100.0
 """The largest ratio of areas two parts of one surface may have (:func:`overlap_kind`)."""
 
@@ -356,9 +367,10 @@ def cut_against_hole(top_x: Topology, top_y: Topology, ratio: float) -> bool:
     (measured on FAUST_r: dense error 0.61 and 0.77 where the partial mode gives 0.023 and 0.034;
     docs/partial.md, "A part against a scan with a larger hole"). The source counts as a part when
     its widest loop spans at least :data:`CUT_SPAN_FACTOR` times the target's widest and its area
-    ``ratio`` (source over target) is a part's: at least :data:`MIN_PART_SHARE` and under one.
+    ``ratio`` (source over target) is a part's: at least :data:`MIN_PART_SHARE` and under
+    :data:`MAX_PART_AREA_RATIO`.
     """
-    if not top_x.open_boundaries or not MIN_PART_SHARE <= ratio < 1.0:
+    if not top_x.open_boundaries or not MIN_PART_SHARE <= ratio < MAX_PART_AREA_RATIO:
         return False
     return top_x.widest_span >= CUT_SPAN_FACTOR * top_y.widest_span
 
@@ -394,7 +406,8 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
     ------
     MeshError
         The meshes differ in topology in a way no partial mode explains (another genus, a
-        target with more boundary loops than its source, a "part" larger than its whole),
+        target with more boundary loops than its source, a "part" of
+        :data:`MAX_PART_AREA_RATIO` times its whole's area or more),
         or ``partial`` is False and the source is partial; the message names both meshes
         and what to do.
 
@@ -420,13 +433,16 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
             f"boundary loops, but the source's widest spans {top_x.widest_span:.1%} of its area against "
             f"{top_y.widest_span:.1%}, a cut against a hole: matched as a part of it"
         )
-        return PairKind("partial", reason, ratio, INCOMPLETE_TARGET)
+        cautions = [INCOMPLETE_TARGET]
+        if ratio >= 1.0:
+            cautions.append(larger_part_caution(source, target, ratio))
+        return PairKind("partial", reason, ratio, "; ".join(cautions))
     if top_x.open_boundaries > top_y.open_boundaries and top_x.genus <= top_y.genus:
         if not partial:
             raise MeshError(
                 f"{refusal}; the source looks like a part of the target: set partial=auto to match it"
             )
-        if ratio >= 1.0:
+        if ratio >= MAX_PART_AREA_RATIO:
             raise MeshError(
                 f"{refusal}. The source has boundary loops the target lacks, like a part of it, but its "
                 f"area is {ratio:.3g} times the target's: a part is matched in its whole's unit of length, "
@@ -443,7 +459,10 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
             f"{source.name} has {top_x} and {ratio:.0%} of the area of {target.name} ({top_y}): "
             "matched as a part of it"
         )
-        return PairKind("partial", reason, ratio, INCOMPLETE_TARGET if top_y.open_boundaries else "")
+        cautions = [INCOMPLETE_TARGET] if top_y.open_boundaries else []
+        if ratio >= 1.0:
+            cautions.append(larger_part_caution(source, target, ratio))
+        return PairKind("partial", reason, ratio, "; ".join(cautions))
     if top_y.open_boundaries > top_x.open_boundaries and top_y.genus <= top_x.genus:
         raise MeshError(
             f"{refusal}; the target looks like a part of the source. The partial mode maps a part onto "
@@ -454,6 +473,17 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
     raise MeshError(
         f"{refusal}; across different genus no consistent matching may exist and the solver can "
         "search for hours. Repair the meshes, or set allow_topology_mismatch=true to try anyway"
+    )
+
+
+def larger_part_caution(source: Mesh, target: Mesh, ratio: float) -> str:
+    """Why a partial source with more area than its target is still read as a part of it."""
+    return (
+        f"{source.name} has boundary loops {target.name} lacks but {ratio:.2f} times its area: read as a "
+        f"part of a larger body in the same unit of length (under {MAX_PART_AREA_RATIO:g} times the area), "
+        "shown to a network that reads coordinates at the size its features say; give both meshes in the "
+        "same unit if they are not"
+        f"{unit_hint(ratio)}"
     )
 
 
@@ -590,18 +620,60 @@ def rigid_fit_residual(
     float
         Median residual over all N pairs, in the points' unit.
     """
-    used = np.ones(len(points), dtype=bool)
-    for _ in range(rounds):
-        rotation, translation = _kabsch(points[used], partners[used])
-        residuals = np.linalg.norm(points @ rotation.T + translation - partners, axis=1)
-        used = residuals <= np.quantile(residuals, share)
+    residuals, _ = _trimmed_fit(points, partners, share, rounds, with_scale=False)
     return float(np.median(residuals))
 
 
-def _kabsch(points: np.ndarray, partners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation (3, 3) and translation (3,) moving ``points`` (N, 3) closest to ``partners`` (N, 3)."""
+def fitted_scale(points: np.ndarray, partners: np.ndarray, share: float = 0.5, rounds: int = 5) -> float:
+    """Scale of the trimmed best similarity motion (rotation, scale, translation) onto the partners.
+
+    As :func:`rigid_fit_residual`, with a scale fitted too (Umeyama): how many times larger the
+    partners' surface is than the points' where the two correspond. A part's vertices and the
+    whole's vertices their features point at give the part's size relative to the whole
+    (within 1-4 % on FAUST_r parts of 70-90 % of the area; docs/partial.md, "A part larger than
+    its whole").
+
+    Parameters
+    ----------
+    points : np.ndarray, shape (N, 3)
+    partners : np.ndarray, shape (N, 3)
+    share : float
+        Share of pairs each refit uses.
+    rounds : int
+        Refits.
+
+    Returns
+    -------
+    float
+        The scale that carries ``points`` onto ``partners``.
+    """
+    return _trimmed_fit(points, partners, share, rounds, with_scale=True)[1]
+
+
+def _trimmed_fit(
+    points: np.ndarray, partners: np.ndarray, share: float, rounds: int, with_scale: bool
+) -> tuple[np.ndarray, float]:
+    """Residuals (N,) and scale of the last of ``rounds`` fits, each on the previous one's best ``share``."""
+    used = np.ones(len(points), dtype=bool)
+    for _ in range(rounds):
+        rotation, scale, translation = _best_motion(points[used], partners[used], with_scale)
+        residuals = np.linalg.norm(scale * points @ rotation.T + translation - partners, axis=1)
+        used = residuals <= np.quantile(residuals, share)
+    return residuals, scale
+
+
+def _best_motion(
+    points: np.ndarray, partners: np.ndarray, with_scale: bool
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """Rotation (3, 3), scale and translation (3,) moving ``points`` (N, 3) closest to ``partners`` (N, 3).
+
+    No reflection; the scale is 1 unless ``with_scale`` (Umeyama's).
+    """
     centre_p, centre_q = points.mean(axis=0), partners.mean(axis=0)
-    u, _, vt = np.linalg.svd((points - centre_p).T @ (partners - centre_q))
-    proper = np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))])
-    rotation = vt.T @ proper @ u.T
-    return rotation, centre_q - centre_p @ rotation.T
+    u, singular, vt = np.linalg.svd((points - centre_p).T @ (partners - centre_q))
+    signs = np.array([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))])
+    rotation = vt.T @ np.diag(signs) @ u.T
+    scale = 1.0
+    if with_scale:
+        scale = float((singular * signs).sum() / max(((points - centre_p) ** 2).sum(), 1e-300))
+    return rotation, scale, centre_q - scale * centre_p @ rotation.T
