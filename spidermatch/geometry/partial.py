@@ -631,21 +631,8 @@ def fitted_scale(points: np.ndarray, partners: np.ndarray, share: float = 0.5, r
     partners' surface is than the points' where the two correspond. A part's vertices and the
     whole's vertices their features point at give the part's size relative to the whole
     (within 1-4 % on FAUST_r parts of 70-90 % of the area; docs/partial.md, "A part larger than
-    its whole").
-
-    Parameters
-    ----------
-    points : np.ndarray, shape (N, 3)
-    partners : np.ndarray, shape (N, 3)
-    share : float
-        Share of pairs each refit uses.
-    rounds : int
-        Refits.
-
-    Returns
-    -------
-    float
-        The scale that carries ``points`` onto ``partners``.
+    its whole"). Parameters as :func:`rigid_fit_residual`; returns the scale that carries
+    ``points`` (N, 3) onto ``partners`` (N, 3).
     """
     return _trimmed_fit(points, partners, share, rounds, with_scale=True)[1]
 
