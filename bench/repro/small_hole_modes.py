@@ -8,7 +8,8 @@ the alignment a hole needs, ``HOLE_ALIGNMENT``, to 0; for the partial mode the t
 and prints, per hole, the share of the area removed, the share its loop spans, the status, the
 mean geodesic dense error over the source's surviving reference points (target's sqrt(area)) and
 the time. The source should have the smaller area (a "part" with more area than its whole is read
-as a part of a larger body, ``MAX_PART_AREA_RATIO``); of a hole that leaves an island only the largest piece is kept. ``--keep 0.9 0.8``
+as a part of a larger body, ``MAX_PART_AREA_RATIO``); of a hole that leaves an island only the
+largest piece is kept. ``--keep 0.9 0.8``
 cuts the legs off instead (a horizontal plane keeping that share of the area: the feet at 0.9,
 loops of about 0.5 % each, across the legs: a cut, so the partial mode by default), and
 ``--partial-checkpoint`` gives the partial mode its own network, as a user would.
