@@ -100,7 +100,7 @@ def test_a_part_is_recognised_and_other_topology_differences_refused(creature):
 
 
 def test_a_large_part_of_a_larger_body_is_a_part_not_a_whole_shape(creature):
-    """A 85 % scan of a body 1.2 times the target's size has more area than the target (FAUST_r's
+    """An 85 % scan of a body 1.2 times the target's size has more area than the target (FAUST_r's
     bodies differ that much); it is still a part, with a caution, up to MAX_PART_AREA_RATIO."""
     part = plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.85, "tall.off").mesh
     for size in (1.2, 1.35):

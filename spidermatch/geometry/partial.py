@@ -317,7 +317,7 @@ MAX_PART_AREA_RATIO = 2.0
 
 A part has less area than its own whole, but a user's part often comes from another body than
 the target (a tall person's scan against a template): FAUST_r's 80 bodies differ up to 1.88-fold
-in area (its poses 7 and 9 are also scaled down, 1.18-fold in length), so a 85 % part of one
+in area (its poses 7 and 9 are also scaled down, 1.18-fold in length), so an 85 % part of one
 body has 1.2 times the area of another. Refusing those, or matching them as two whole shapes,
 laid them wrong (docs/partial.md, "A part larger than its whole"). The smallest mix-up of
 common units is 2.54-fold in length (6.45 in area), so below this ratio the source is read as a
