@@ -26,6 +26,7 @@ from features.orientation import (
     UNTURNED,
     Orientation,
     OrientationSearch,
+    feature_partners,
     oriented_outputs,
     presented_input,
     probe_input,
@@ -309,7 +310,8 @@ class LearnedExtractor:
         As :meth:`part_features`, but the part is shown to the network in each of the best
         presentations of the orientation search
         (:meth:`features.orientation.OrientationSearch.ranked_for_part`), best first, so that
-        the matching can choose among them (:func:`spidermatch.pipeline.match_presentations`).
+        a caller can choose among them (``bench/bench_presentations.py``; docs/partial.md, "Several
+        presentations").
         Without an orientation search there is one presentation.
 
         Returns
@@ -399,10 +401,9 @@ class LearnedExtractor:
         if part.area <= unit_area:
             return ranked
         with torch.no_grad():
-            out = self.network(presented_input(probe, ranked[0]).features, probe.ops)
-            partners = (torch.nn.functional.normalize(out, dim=-1) @ whole.T).argmax(dim=1).numpy()
+            _, partners = feature_partners(self.network, probe, ranked[0], whole)
         points = probe.features[:, -XYZ_CHANNELS:].double().numpy()
-        size = fitted_scale(points, whole_points[partners])
+        size = fitted_scale(points, whole_points[partners.numpy()])
         size = min(size, float(np.sqrt(unit_area / part.area)))
         logger.info(
             "%s has %.2f times the area of its whole: shown at %.3f times its given size",

@@ -83,6 +83,17 @@ def presented_input(shape: ShapeInput, orientation: Orientation) -> ShapeInput:
     )
 
 
+def feature_partners(
+    network: DiffusionNet, part: ShapeInput, presentation: Orientation, whole: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each part vertex's nearest feature on the whole: cosine similarity (V_p,) and index (V_p,).
+
+    The part is shown in ``presentation``; ``whole`` (V, C_out) has L2-normalised rows.
+    """
+    out = network(presented_input(part, presentation).features, part.ops)
+    return (torch.nn.functional.normalize(out, dim=-1) @ whole.T).max(dim=1)
+
+
 def placement_offsets(whole_points: np.ndarray) -> np.ndarray:
     """Trial positions (P, 3) of a part's centre relative to its whole's centre, (0, 0, 0) first.
 
@@ -278,8 +289,7 @@ class OrientationSearch:
         points = part.features[:, -XYZ_CHANNELS:].double().numpy()
 
         def score(candidate: Orientation) -> float:
-            out = network(presented_input(part, candidate).features, part.ops)
-            similarity, partners = (torch.nn.functional.normalize(out, dim=-1) @ whole.T).max(dim=1)
+            similarity, partners = feature_partners(network, part, candidate, whole)
             residual = rigid_fit_residual(points, whole_points[partners.numpy()])
             return residual * (1.0 - similarity.double().mean().item())
 
