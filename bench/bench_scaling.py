@@ -44,6 +44,7 @@ def run_instance(task: tuple) -> dict:
         task
     )
     highs = rest[0] if rest else {}  # extra HiGHS options for every solve (bench_solve.py --highs)
+    tour = rest[1] if len(rest) > 1 else "christofides"
     if log_dir:  # the solver's INFO log of this instance, one file per instance
         import logging
 
@@ -61,6 +62,7 @@ def run_instance(task: tuple) -> dict:
         resolution=faces,
         strategy=strategy,
         curve_matching=matching,
+        curve_tour=tour,
         solver=SolverOptions(time_limit=time_limit, extra=highs),
     )
     try:
@@ -77,6 +79,7 @@ def run_instance(task: tuple) -> dict:
         "features": features,
         "strategy": strategy,
         "curve_matching": matching,
+        "curve_tour": tour,
         "adapt_steps": adapt_steps,
         "status": solved.status,
         "columns_built": _columns_built(strategy, solved, result.graph.n_edges),
@@ -164,6 +167,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--faces", nargs="+", type=int, default=[500, 1000, 2000, 4000])
     parser.add_argument("--strategies", nargs="+", default=["colgen", "rcfix"])
     parser.add_argument("--curve-matching", default="greedy", choices=("greedy", "blossom"))
+    parser.add_argument("--curve-tour", default="christofides", choices=("christofides", "two_opt"))
     parser.add_argument("--time-limit", type=float, default=600.0, help="seconds per solve")
     parser.add_argument("--full-model-columns", type=float, default=2.0e7)
     parser.add_argument("--out", default="bench/results/solver_scaling_faust_val.json")
@@ -188,7 +192,7 @@ def main(argv: list[str] | None = None) -> None:
                     task = (args.data, pair, faces, strategy, *features)
                     start = time.perf_counter()
                     with context.Pool(1) as pool:
-                        extra = (args.time_limit, args.curve_matching, args.log_dir)
+                        extra = (args.time_limit, args.curve_matching, args.log_dir, {}, args.curve_tour)
                         row = pool.apply(run_instance, (task + extra,))
                     row["process_s"] = round(time.perf_counter() - start, 1)
                 rows.append(row)

@@ -108,6 +108,8 @@ class MatchSettings:
     curve_seed : int
     curve_matching : str
         Odd-vertex matching of the SpiderCurve's Christofides tour: "greedy" or "blossom".
+    curve_tour : str
+        "christofides" (the paper's tour) or "two_opt" (shortened; fewer self-intersections).
     loss : RobustLoss
     constraints : tuple of str
         Constraint families to impose (all four by default).
@@ -138,6 +140,7 @@ class MatchSettings:
     target_augmented: bool = bool(defaults.option("costs/default", "target_augmented"))
     curve_seed: int = int(defaults.option("curve/default", "seed"))
     curve_matching: str = defaults.option("curve/default", "matching")
+    curve_tour: str = defaults.option("curve/default", "tour")
     loss: RobustLoss = field(default_factory=RobustLoss)
     constraints: tuple = tuple(defaults.option("costs/default", "constraints"))
     solver: SolverOptions = field(default_factory=default_solver_options)
@@ -301,7 +304,11 @@ def prepare(
         low_x, low_y = (given_vertices_only(low, copy) for low, copy in zip((low_x, low_y), closed))
     with _stage(timings, "curve"):
         curve = spider_curve(
-            low_x.mesh, settings.curve_augmented, settings.curve_seed, settings.curve_matching
+            low_x.mesh,
+            settings.curve_augmented,
+            settings.curve_seed,
+            settings.curve_matching,
+            settings.curve_tour,
         )
     with _stage(timings, "costs"):
         edges_y = low_y.mesh.augmented_edges if settings.target_augmented else low_y.mesh.edges

@@ -13,7 +13,7 @@ import logging
 
 from spidermatch.dense.settings import settings_problems as dense_settings_problems
 from spidermatch.geometry.mesh import Mesh, MeshError
-from spidermatch.model.curve import MATCHINGS
+from spidermatch.model.curve import MATCHINGS, TOURS
 from spidermatch.values import is_finite, is_number, is_whole, show
 
 logger = logging.getLogger(__name__)
@@ -118,6 +118,8 @@ def costs_and_curve_problems(cfg) -> list[str]:
         problems.append(
             f"curve.decimation={show(cfg.curve.get('decimation'))}: choose from {', '.join(DECIMATIONS)}"
         )
+    if cfg.curve.get("tour", "christofides") not in TOURS:
+        problems.append(f"curve.tour={show(cfg.curve.get('tour'))}: choose from {', '.join(TOURS)}")
     if cfg.curve.get("matching", "greedy") not in MATCHINGS:
         problems.append(
             f"curve.matching={show(cfg.curve.get('matching'))}: choose from {', '.join(MATCHINGS)}"

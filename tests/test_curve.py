@@ -1,3 +1,5 @@
+import itertools
+
 import numpy as np
 import pytest
 
@@ -9,15 +11,18 @@ from spidermatch.model.curve import (
     check_curve,
     greedy_perfect_matching,
     spider_curve,
+    two_opt_tour,
 )
 
 
 @pytest.mark.parametrize("augmented", [False, True])
-@pytest.mark.parametrize("matching", ["greedy", "blossom"])
+@pytest.mark.parametrize(
+    "matching, tour", [("greedy", "christofides"), ("blossom", "christofides"), ("greedy", "two_opt")]
+)
 @pytest.mark.parametrize("shape_seed, faces", [(7, 200), (11, 120), (3, 300)])
-def test_spider_curve_invariants(augmented, matching, shape_seed, faces):
+def test_spider_curve_invariants(augmented, matching, tour, shape_seed, faces):
     mesh = decimate(make_creature(1500, shape_seed).mesh, faces).mesh
-    curve = spider_curve(mesh, augmented=augmented, seed=3, matching=matching)
+    curve = spider_curve(mesh, augmented=augmented, seed=3, matching=matching, tour=tour)
     c = curve.vertices
     assert set(c.tolist()) == set(range(mesh.n_verts))  # covers every vertex
     assert np.all(c != np.roll(c, -1))
@@ -69,3 +74,31 @@ def test_unknown_matching_is_rejected():
     mesh = decimate(make_creature(1500, 7).mesh, 100).mesh
     with pytest.raises(ValueError, match="unknown curve matching"):
         spider_curve(mesh, matching="fastest")
+
+
+def test_two_opt_finds_the_optimal_tour_of_points_in_convex_position():
+    """Points on a circle: a tour without crossings is the optimum, which brute force confirms."""
+    rng = np.random.default_rng(4)
+    angles = np.sort(rng.uniform(0, 2 * np.pi, 8))
+    points = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    distances = np.linalg.norm(points[:, None] - points[None], axis=2)
+    shuffled = np.concatenate([[0], rng.permutation(np.arange(1, 8))])
+
+    def length(order):
+        return distances[order, np.roll(order, -1)].sum()
+
+    best = min(length(np.array((0, *rest))) for rest in itertools.permutations(range(1, 8)))
+    improved = two_opt_tour(shuffled, distances, neighbours=7)
+    assert improved[0] == 0 and sorted(improved.tolist()) == list(range(8))
+    assert length(shuffled) > best + 1e-6  # the start is not already optimal
+    assert length(improved) == pytest.approx(best)
+
+
+def test_two_opt_curve_is_shorter_with_fewer_self_intersections():
+    mesh = decimate(make_creature(3000, 5).mesh, 600).mesh
+    paper, shortened = spider_curve(mesh, seed=2), spider_curve(mesh, seed=2, tour="two_opt")
+    assert shortened.length < paper.length
+    assert shortened.intersections.size < paper.intersections.size
+    check_curve(shortened, mesh.edges)
+    with pytest.raises(ValueError, match="unknown curve tour"):
+        spider_curve(mesh, tour="or_opt")

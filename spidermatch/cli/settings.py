@@ -22,6 +22,7 @@ def settings_from_config(cfg, resolution: int, feature_name: str) -> MatchSettin
         target_augmented=bool(cfg.costs.target_augmented),
         curve_seed=int(cfg.curve.seed),
         curve_matching=str(cfg.curve.matching),
+        curve_tour=str(cfg.curve.get("tour", "christofides")),
         close_small_holes=bool(cfg.curve.get("close_small_holes", True)),
         loss=RobustLoss(float(cfg.costs.alpha), float(cfg.costs.scale), float(cfg.costs.bowl_exponent)),
         constraints=tuple(cfg.costs.constraints),
