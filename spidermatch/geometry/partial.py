@@ -433,10 +433,8 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
             f"boundary loops, but the source's widest spans {top_x.widest_span:.1%} of its area against "
             f"{top_y.widest_span:.1%}, a cut against a hole: matched as a part of it"
         )
-        cautions = [INCOMPLETE_TARGET]
-        if ratio >= 1.0:
-            cautions.append(larger_part_caution(source, target, ratio))
-        return PairKind("partial", reason, ratio, "; ".join(cautions))
+        caution = part_cautions(source, target, ratio, incomplete_target=True)
+        return PairKind("partial", reason, ratio, caution)
     if top_x.open_boundaries > top_y.open_boundaries and top_x.genus <= top_y.genus:
         if not partial:
             raise MeshError(
@@ -459,10 +457,8 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
             f"{source.name} has {top_x} and {ratio:.0%} of the area of {target.name} ({top_y}): "
             "matched as a part of it"
         )
-        cautions = [INCOMPLETE_TARGET] if top_y.open_boundaries else []
-        if ratio >= 1.0:
-            cautions.append(larger_part_caution(source, target, ratio))
-        return PairKind("partial", reason, ratio, "; ".join(cautions))
+        caution = part_cautions(source, target, ratio, incomplete_target=bool(top_y.open_boundaries))
+        return PairKind("partial", reason, ratio, caution)
     if top_y.open_boundaries > top_x.open_boundaries and top_y.genus <= top_x.genus:
         raise MeshError(
             f"{refusal}; the target looks like a part of the source. The partial mode maps a part onto "
@@ -474,6 +470,14 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
         f"{refusal}; across different genus no consistent matching may exist and the solver can "
         "search for hours. Repair the meshes, or set allow_topology_mismatch=true to try anyway"
     )
+
+
+def part_cautions(source: Mesh, target: Mesh, ratio: float, incomplete_target: bool) -> str:
+    """A partial pair's cautions, joined: a target with boundary loops of its own, a part larger than it."""
+    cautions = [INCOMPLETE_TARGET] if incomplete_target else []
+    if ratio >= 1.0:
+        cautions.append(larger_part_caution(source, target, ratio))
+    return "; ".join(cautions)
 
 
 def larger_part_caution(source: Mesh, target: Mesh, ratio: float) -> str:
