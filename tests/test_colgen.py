@@ -220,6 +220,32 @@ def test_no_wider_mip_starts_with_too_little_time_left_and_the_answer_stays_hone
     assert solved.gap == pytest.approx((solved.objective - solved.bound) / abs(solved.objective), rel=1e-6)
 
 
+def test_a_mip_out_of_memory_ends_the_run_with_its_incumbent_and_no_wider_mip(monkeypatch):
+    """HiGHS stops a restricted MIP for a failed allocation: no wider MIP, `feasible`, and why."""
+    import math
+
+    import spidermatch.solve.colgen as colgen
+    from spidermatch.solve.types import OUT_OF_MEMORY, SolveResult
+
+    lazy = creature_lazy(24, 3)
+    plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
+    calls = []
+
+    def out_of_memory(lazy, columns, options, incumbent, *rest):
+        calls.append(columns.size)
+        start = float(lazy.costs(np.flatnonzero(incumbent > 0.5)).sum())
+        return SolveResult(
+            "feasible", incumbent, start, -math.inf, math.nan, 0.0, columns.size, 1, 1, OUT_OF_MEMORY
+        )
+
+    monkeypatch.setattr(colgen, "_restricted_mip", out_of_memory)
+    monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)
+    solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, replace(EXACT, time_limit=600.0))
+    assert len(calls) == 1 and solved.status == "feasible" and "ran out of memory" in solved.message
+    assert solved.bound <= plain.objective * (1 + 1e-9) <= solved.objective * (1 + 1e-9)
+    assert_one_checked_path(lazy, solved.x)
+
+
 def test_a_mip_that_would_not_fit_in_memory_is_not_started_and_the_answer_stays_honest(monkeypatch):
     """No memory for the first MIP: the stay path (or the LP's), the LP bound, `feasible`, and why."""
     import spidermatch.solve.colgen as colgen

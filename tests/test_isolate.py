@@ -73,6 +73,23 @@ def test_a_child_that_dies_is_retried_with_the_heuristics_off_and_the_better_of_
     assert solve_isolated(dying_with_heuristics, MODEL, None, None, no_time).status == "error"
 
 
+def dying_on_many_threads(model, graph, curve, options):
+    """Aborts as an allocation failing on a HiGHS worker thread does, unless HiGHS runs on one."""
+    if options.threads != 1:
+        os.abort()
+    x = np.zeros(model.n_vars)
+    x[[0, 3]] = 1.0
+    return SolveResult("feasible", x, 4.5, 3.9, 0.1, 0.1, model.n_vars, model.n_rows, model.nnz, "stopped")
+
+
+def test_the_retry_runs_highs_on_one_thread():
+    result = solve_isolated(
+        dying_on_many_threads, MODEL, None, None, SolverOptions(time_limit=60.0, threads=2)
+    )
+    assert result.status == "feasible" and "retried after the solver process died" in result.message
+    np.testing.assert_array_equal(np.flatnonzero(result.x), [0, 3])
+
+
 def hanging_after_a_path(model, graph, curve, options):
     """Reports an incumbent with its solution and a bound, then never returns (HiGHS in a phase
     without interrupt checks)."""
@@ -304,3 +321,33 @@ def test_a_child_that_repairs_itself_is_left_to_its_repair(monkeypatch):
         partial(repairing_itself), lazy, lazy.graph, lazy.curve, SolverOptions(time_limit=1.0)
     )
     assert "past the time limit" in result.message and "repair" not in result.message
+
+
+def test_highs_out_of_memory_keeps_its_incumbent_and_claims_no_bound():
+    """HiGHS's `Memory limit reached` is a stop (the incumbent kept), not an error, and no certificate."""
+    import highspy
+
+    from spidermatch.solve.highs import _read_result
+
+    status = highspy.HighsModelStatus
+
+    def session(model_status, has_solution):
+        info = SimpleNamespace(
+            primal_solution_status=2 if has_solution else 0, objective_function_value=7.0, mip_dual_bound=6.9
+        )
+        highs = SimpleNamespace(
+            getModelStatus=lambda: model_status,
+            getInfo=lambda: info,
+            modelStatusToString=lambda s: (
+                "Memory limit reached" if s == status.kMemoryLimit else "Time limit reached"
+            ),
+            getSolution=lambda: SimpleNamespace(col_value=[1.0, 0.0, 1.0]),
+        )
+        return SimpleNamespace(highs=highs, relax=False, options=SolverOptions(), n_vars=3, n_rows=1, nnz=3)
+
+    stopped = _read_result(session(status.kMemoryLimit, True), 1.0)
+    assert stopped.status == "feasible" and stopped.out_of_memory and stopped.objective == 7.0
+    assert stopped.bound == -math.inf and math.isnan(stopped.gap)
+    np.testing.assert_array_equal(stopped.x, [1.0, 0.0, 1.0])
+    assert _read_result(session(status.kMemoryLimit, False), 1.0).status == "no_solution"
+    assert not _read_result(session(status.kTimeLimit, True), 1.0).out_of_memory

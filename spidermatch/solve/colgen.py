@@ -359,6 +359,9 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
             return replace(best, status="optimal")
         if result.status not in ("optimal", "feasible"):
             return replace(best, status="feasible")
+        if result.out_of_memory:  # a wider MIP would need more
+            message = f"not certified: the restricted MIP over {len(columns)} columns ran out of memory"
+            return replace(best, status="feasible", message=message)
         seconds_left = remaining(options, start).time_limit
         if too_little_time_for_a_step(options, seconds_left):
             message = f"not certified: {seconds_left:.1f} s left, too little for a wider MIP ({best.message})"

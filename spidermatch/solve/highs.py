@@ -22,6 +22,7 @@ from spidermatch.model.solution import used_columns
 from spidermatch.solve.interrupt import OVERRUN_GRACE_S, run_interruptibly
 from spidermatch.solve.progress import ProgressLog, report_detached, report_known
 from spidermatch.solve.types import (
+    OUT_OF_MEMORY,
     SolveResult,
     SolverOptions,
     certified_mip_bound,
@@ -407,6 +408,10 @@ def _read_result(session: HighsSession, wall: float) -> SolveResult:
         kind = "feasible"
     elif status in _STOPPED:
         kind = "no_solution"
+    elif status == _STATUS.kMemoryLimit:  # a failed allocation caught on HiGHS's main thread
+        kind = "feasible" if has_solution else "no_solution"
+        bound = -math.inf  # what HiGHS reports after it is not read as a certificate
+        message = f"{OUT_OF_MEMORY}: HiGHS could not allocate; its incumbent kept, its bound not"
     else:
         kind = "error"
     return SolveResult(

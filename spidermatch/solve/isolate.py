@@ -72,6 +72,7 @@ POLL_S = 0.05  # how often the parent looks at the pipe, the child and the signa
 STOP_GRACE_S = 3.0  # after a forwarded signal, how long the child may take to answer
 OVERRUN_KILL_S = 4.5  # how far past its time limit the solver process may run before it is killed
 RETRY_OPTIONS = {"mip_heuristic_effort": 0.0, "mip_heuristic_run_feasibility_jump": False}  # after a death
+RETRY_THREADS = 1  # an allocation failing on a HiGHS worker thread aborts; on its main thread it is a status
 RETRY_MIN_S = 10.0  # the least time left for which a solve is retried after its process died
 # (the budget is kept within 5 s: HiGHS is interrupted at +OVERRUN_GRACE_S where it checks, the
 # process killed at +4.5 s where it does not, and the kill takes well under a second)
@@ -236,10 +237,12 @@ def solve_isolated(
 
 
 def _retried_after_death(solve, model, graph, curve, options, start: float, failed: SolveResult, reports):
-    """After the solver process died: the solve again in a fresh one with HiGHS's heuristics off.
+    """After the solver process died: the solve again in a fresh one, HiGHS on one thread, heuristics off.
 
-    Every HiGHS abort seen (docs/solver_failures.md) was inside a primal heuristic, which only
-    looks for incumbents; :data:`RETRY_OPTIONS` turns them all off. The retry gets what is
+    The HiGHS aborts seen (docs/solver_failures.md) were inside a primal heuristic, which only
+    looks for incumbents (:data:`RETRY_OPTIONS` turns them all off), or an allocation that failed
+    on one of HiGHS's worker threads under a memory limit, where nothing catches it (on its main
+    thread HiGHS catches it and stops with its incumbent: :data:`RETRY_THREADS`). The retry gets what is
     left of the time limit (none, if less than :data:`RETRY_MIN_S`). The result is the cheaper
     of its solution and the last closed path the dead process reported, with the larger of
     the two certified bounds (both hold for the full model). A retry that dies too, or no time
@@ -249,10 +252,11 @@ def _retried_after_death(solve, model, graph, curve, options, start: float, fail
     if _is_retry(options) or left < RETRY_MIN_S:
         return failed
     logger.warning(
-        "retrying the solve in a fresh solver process with HiGHS's primal heuristics off (%s left)",
+        "retrying the solve in a fresh solver process, HiGHS on one thread with its heuristics off (%s left)",
         f"{left:.0f} s" if math.isfinite(left) else "no time limit",
     )
-    retry_options = replace(options, time_limit=left, extra={**options.extra, **RETRY_OPTIONS})
+    extra = {**options.extra, **RETRY_OPTIONS}
+    retry_options = replace(options, time_limit=left, threads=RETRY_THREADS, extra=extra)
     retried = solve_isolated(solve, model, graph, curve, retry_options)
     if retried.status == "error":
         return replace(failed, message=f"{failed.message}; the retry died too ({retried.message})")

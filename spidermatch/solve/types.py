@@ -47,6 +47,10 @@ class SolverOptions:
     extra: dict = field(default_factory=dict)
 
 
+OUT_OF_MEMORY = "Memory limit reached"
+"""How a result begins its message when HiGHS stopped because an allocation failed."""
+
+
 @dataclass(frozen=True)
 class SolveResult:
     """Outcome of a solve.
@@ -79,6 +83,11 @@ class SolveResult:
     message: str = ""
     cut_rounds: int = 0
     columns_built: int | None = None  # columns a strategy that never builds the full model did build
+
+    @property
+    def out_of_memory(self) -> bool:
+        """True if HiGHS stopped because an allocation failed (:data:`OUT_OF_MEMORY`)."""
+        return self.message.startswith(OUT_OF_MEMORY)
 
     @property
     def proven_optimal(self) -> bool:
