@@ -54,7 +54,7 @@ from spidermatch.geometry.remesh import nearest_vertices
 
 COLUMNS = (
     "part", "target", "kept_area", "mode", "status", "gap", "solve_s", "total_s", "dense_error", "iou",
-    "verdict", "distortion",
+    "verdict", "distortion", "dense_distortion", "mirror", "dense_mirror",
 )  # fmt: skip
 BAD_ERROR = 0.1  # a dense error above this is a wrong map (a misplaced or mirrored part)
 OVERLAP_COLUMNS = (*COLUMNS, "source_iou", "overlap_mapped")
@@ -242,7 +242,8 @@ def _timed_match(source: Mesh, target: Mesh, args, extractor, partial: str, row:
         solve_s=round(result.timings.get("solve", float("nan")), 1),
     )
     if result.quality:  # the verdict without ground truth, to set beside the error
-        row.update(verdict=result.quality["verdict"], distortion=result.quality["distortion"])
+        figures = ("verdict", "distortion", "dense_distortion", "mirror", "dense_mirror")
+        row.update({name: result.quality.get(name) for name in figures})
     return result
 
 

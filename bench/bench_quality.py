@@ -6,7 +6,8 @@ truth, judged again with the current thresholds of ``spidermatch.eval.quality.ju
 mean geodesic error (with it). A matching is *bad* when its dense map's mean error
 exceeds ``--bad-error`` (0.1 of sqrt(area): a mirrored or misplaced body part; correct maps
 on FAUST_r are near 0.03). Prints and writes the confusion table of "suspect" against "bad"
-per collection and overall, and the same table for other thresholds of the mirror figure.
+per collection and overall, and the same table for other thresholds of the mirror figure, alone
+and confirmed by the dense map's (``dense_mirror``).
 
 Example (WKS on FAUST_r humans at 500 faces, TOSCA animals with a label-free TOSCA checkpoint
 at 1000 faces, FAUST_r humans with that checkpoint):
@@ -40,7 +41,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 from bench_scaling import write_rows  # noqa: E402
 
 sys.path.insert(0, str(ROOT))
-from spidermatch.eval.quality import DISTORTION_SUSPECT, judge  # noqa: E402
+from spidermatch.eval.quality import DISTORTION_SUSPECT, MIRROR_SUSPECT, judge  # noqa: E402
 
 
 def pair_list(data: Path, n_pairs: int, within: str, seed: int) -> list[tuple[str, str]]:
@@ -88,7 +89,8 @@ def read_pair(path: Path) -> dict | None:
     quality = report.get("quality")
     if not quality:
         return None
-    dense = ((report.get("dense") or {}).get("dense") or {}).get("geodesic_error")
+    dense_figures = (report.get("dense") or {}).get("dense") or {}
+    dense = dense_figures.get("geodesic_error")
     return {
         "pair": path.parent.name,
         "status": report.get("status"),
@@ -102,8 +104,16 @@ def read_pair(path: Path) -> dict | None:
         "distortion_judged": quality.get("distortion_judged", True),
         "sparse_error": (report.get("geodesic_error") or {}).get("mean"),
         "dense_error": dense,
+        "dense_mirror": dense_mirror(dense_figures),
         "reasons": "; ".join(quality["reasons"]),
     }
+
+
+def dense_mirror(figures: dict) -> float | None:
+    """Flipped share of the dense map's non-degenerate image triangles (None without a dense map)."""
+    if "flipped" not in figures:
+        return None
+    return round(figures["flipped"] / max(1.0 - figures.get("degenerate", 0.0), 1e-12), 4)
 
 
 def confusion(rows: list[dict], bad_error: float, suspect=lambda row: row["verdict"] == "suspect") -> dict:
@@ -158,6 +168,17 @@ def main() -> None:
         f"mirror>{threshold}": confusion(rows, args.bad_error, lambda row, t=threshold: row["mirror"] > t)
         for threshold in (0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5)
     }
+    with_dense = [row for row in rows if row.get("dense_mirror") is not None]
+    sweep.update(
+        {  # the mirror figure confirmed by the dense map's (spidermatch.eval.quality.judge)
+            f"mirror>{MIRROR_SUSPECT} and dense_mirror>{threshold}": confusion(
+                with_dense,
+                args.bad_error,
+                lambda row, t=threshold: row["mirror"] > MIRROR_SUSPECT and row["dense_mirror"] > t,
+            )
+            for threshold in (0.1, 0.15, 0.2, 0.25, 0.3)
+        }
+    )
     sweep.update(
         {
             f"distinct<{threshold}": confusion(

@@ -20,7 +20,7 @@ from spidermatch import defaults
 from spidermatch.dense.densify import densify
 from spidermatch.dense.maps import DenseMap, on_given_meshes
 from spidermatch.dense.settings import DenseSettings
-from spidermatch.eval.quality import assess
+from spidermatch.eval.quality import assess, dense_figures, with_dense_figures
 from spidermatch.geometry.holes import (
     ClosedCopy,
     closed_copy,
@@ -404,6 +404,7 @@ def match(
     source_features: np.ndarray,
     target_features: np.ndarray,
     settings: MatchSettings | None = None,
+    announce_quality: bool = True,
 ) -> MatchResult:
     """Globally optimal, geometrically consistent matching of ``source`` to ``target``.
 
@@ -415,6 +416,9 @@ def match(
     target_features : np.ndarray, shape (V_Y, D)
         Per-vertex descriptors on the full-resolution meshes.
     settings : MatchSettings
+    announce_quality : bool
+        Log the quality verdict. False for a caller that makes the dense map itself
+        (:func:`add_dense_map` judges the map again and logs the verdict).
 
     Returns
     -------
@@ -452,13 +456,38 @@ def match(
             _read_solution(result, tuple(settings.constraints))
     if result.low_map is not None:
         result.quality = assess(low_x.mesh, low_y.mesh, result.low_map, solved.gap)
-        log = logger.warning if result.quality["verdict"] == "suspect" else logger.info
-        log("quality: %s%s", result.quality["verdict"], "".join(f"; {r}" for r in result.quality["reasons"]))
-    if settings.dense is not None:
+    if settings.dense is not None:  # it logs the verdict, judged again with the dense map
         add_dense_map(
             result, source, target, (source_features, target_features), settings.dense, settings.partial
         )
+    elif announce_quality and result.quality is not None:
+        _log_quality(result.quality)
     return result
+
+
+def _log_quality(quality: dict, when: str = "") -> None:
+    log = logger.warning if quality["verdict"] == "suspect" else logger.info
+    log("quality%s: %s%s", when, quality["verdict"], "".join(f"; {r}" for r in quality["reasons"]))
+
+
+def _judged_with_dense_map(result: MatchResult, source: Mesh, target: Mesh) -> None:
+    """``result.quality`` judged again with the dense map's figures, and logged."""
+    if result.quality is None or result.dense is None:
+        return
+    before = result.quality
+    result.quality = with_dense_figures(before, dense_figures(source, target, result.dense))
+    quality = result.quality
+    if len(quality["reasons"]) < len(before["reasons"]):  # a symptom the dense map does not show
+        distortion = quality["dense_distortion"]
+        logger.info(
+            "the certified map looked %s (%s); its dense map does not: %.0f%% of its triangles face against "
+            "the target, %s of its sampled distances change by more than half (decimation noise)",
+            before["verdict"],
+            "; ".join(before["reasons"]),
+            100 * quality["dense_mirror"],
+            "n/a" if distortion is None else f"{distortion:.0%}",
+        )
+    _log_quality(quality)
 
 
 OPTIMAL_GAP = 1e-3
@@ -499,7 +528,8 @@ def add_dense_map(
     """Set ``result.dense``: the image of every full-resolution source vertex (a checked matching only).
 
     For a partial source the map also says which target vertices it covers (``covered``,
-    :func:`spidermatch.geometry.partial.covered_target`).
+    :func:`spidermatch.geometry.partial.covered_target`). ``result.quality`` is judged again
+    with the dense map's figures (:func:`spidermatch.eval.quality.with_dense_figures`).
 
     Parameters
     ----------
@@ -514,6 +544,8 @@ def add_dense_map(
 
     """
     if result.low_map is None or result.check is None or not result.check.ok:
+        if result.quality is not None:
+            _log_quality(result.quality)
         return
     with _stage(result.timings, "dense"):
         matched = matched_meshes((source, target), result.closed)
@@ -536,6 +568,7 @@ def add_dense_map(
             whole = target.centred()
             covered = covered_target(whole, result.dense.points(whole), mean_edge_length(source))
             result.dense = dataclasses.replace(result.dense, covered=covered)
+    _judged_with_dense_map(result, source, target)
 
 
 def _read_solution(result: MatchResult, families: tuple = FAMILIES) -> None:

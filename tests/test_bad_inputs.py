@@ -567,6 +567,28 @@ def test_quality_verdict_flags_a_mirror_image_and_a_collapse():
     assert unproven["verdict"] == "suspect" and "gap" in unproven["reasons"][0]
 
 
+def test_a_mirror_image_needs_the_dense_map_to_agree():
+    from spidermatch.eval.quality import assess, dense_mirror, with_dense_figures
+    from spidermatch.geometry.surface import vertex_points
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    source = Mesh(sphere.vertices * [1.0, 0.8, 0.6], sphere.faces, "source")
+    mirror = Mesh(source.verts * [-1.0, 1.0, 1.0], sphere.faces[:, ::-1], "mirror")
+    identity = np.arange(source.n_verts)
+    assert dense_mirror(source, source, *vertex_points(source, identity)) == 0.0
+    assert dense_mirror(source, mirror, *vertex_points(mirror, identity)) > 0.9
+    # a certified map mirrored at low resolution: suspect unless its dense map faces the target
+    mirrored = assess(source, mirror, identity, 1e-4)
+    noise = with_dense_figures(mirrored, {"dense_mirror": 0.01, "dense_distortion": 0.0})
+    assert noise["verdict"] == "plausible" and noise["reasons"] == [] and noise["dense_mirror"] == 0.01
+    confirmed = with_dense_figures(mirrored, {"dense_mirror": 0.95, "dense_distortion": 0.0})
+    assert confirmed["verdict"] == "suspect" and "dense map's, 95%" in confirmed["reasons"][0]
+    # the other symptoms stand whatever the dense map says
+    collapsed = assess(source, source, np.zeros(source.n_verts, dtype=int), 1e-4)
+    collapsed = with_dense_figures(collapsed, {"dense_mirror": 0.0, "dense_distortion": 0.0})
+    assert collapsed["verdict"] == "suspect" and any("collapses" in r for r in collapsed["reasons"])
+
+
 def test_distortion_counts_distances_a_map_changes_whatever_the_unit():
     from spidermatch.eval.quality import assess, distortion
 
@@ -583,6 +605,18 @@ def test_distortion_counts_distances_a_map_changes_whatever_the_unit():
     assert distortion(source, source, scrambled) > 0.2
     verdict = assess(source, source, scrambled, 1e-4)
     assert verdict["verdict"] == "suspect" and any("geodesic distances" in r for r in verdict["reasons"])
+    # the dense map must agree: its own figure, on the full-resolution meshes
+    from spidermatch.dense.maps import DenseMap
+    from spidermatch.eval.quality import dense_figures, with_dense_figures
+    from spidermatch.geometry.surface import vertex_points
+
+    scrambled_dense = DenseMap(scrambled, *vertex_points(source, scrambled), "test")
+    figures = dense_figures(source, source, scrambled_dense)
+    assert figures["dense_distortion"] == round(distortion(source, source, scrambled), 4) > 0.2
+    confirmed = with_dense_figures(verdict, figures)
+    assert any("geodesic distances" in r and "(the dense map" in r for r in confirmed["reasons"])
+    noise = with_dense_figures(verdict, {"dense_mirror": 0.0, "dense_distortion": 0.01})
+    assert not any("geodesic" in r for r in noise["reasons"])
     collapsed = assess(source, source, np.zeros(source.n_verts, dtype=int), 1e-4)
     assert collapsed["distortion"] == 1.0 and not any("geodesic" in r for r in collapsed["reasons"])
     # a target with a hole (partial-to-partial): reported, not judged
@@ -593,6 +627,8 @@ def test_distortion_counts_distances_a_map_changes_whatever_the_unit():
     scrambled_on_holed = inside[::-1].copy()
     holed_verdict = assess(holed, holed, scrambled_on_holed, 1e-4)
     assert holed_verdict["distortion"] > 0.06 and holed_verdict["distortion_judged"] is False
+    holed_dense = DenseMap(scrambled_on_holed, *vertex_points(holed, scrambled_on_holed), "test")
+    assert dense_figures(holed, holed, holed_dense)["dense_distortion"] is None
     assert not any("geodesic" in r for r in holed_verdict["reasons"])
 
 
@@ -605,6 +641,14 @@ def test_every_run_ends_with_one_summary_line(tmp_path, caplog):
     assert last.startswith("result: optimal, gap") and "quality " in last and "mean geodesic error" in last
     assert last.endswith(f"exit 0; outputs in {tmp_path / 'run'}")
     assert result_of(tmp_path / "run")["quality"]["verdict"] in ("plausible", "suspect")
+
+
+def test_the_built_in_demo_ends_plausible(tmp_path):
+    """A newcomer's first command: the README's demo, certified, right and called so."""
+    assert run_match(config("match", ["output.png=false"]), tmp_path / "run") == 0
+    report = result_of(tmp_path / "run")
+    assert report["status"] == "optimal" and report["quality"]["verdict"] == "plausible", report["quality"]
+    assert report["quality"]["dense_mirror"] < 0.05 and report["dense"]["dense"]["geodesic_error"] < 0.03
 
 
 def test_training_that_ends_worse_than_wks_says_so():

@@ -111,7 +111,14 @@ def run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) ->
         settings_from_config(cfg, inputs.resolution, feature_name), partial=inputs.partial
     )
     logger.info("solving strategy: %s", settings.strategy)
-    result = match(inputs.source, inputs.target, feat_x, feat_y, dataclasses.replace(settings, dense=None))
+    result = match(
+        inputs.source,
+        inputs.target,
+        feat_x,
+        feat_y,
+        dataclasses.replace(settings, dense=None),
+        announce_quality=settings.dense is None,  # else add_dense_map does, judged with the dense map
+    )
     report.update(result_summary(result, inputs, feature_name))
     report["timings_s"] = {"features": round(feature_time, 3), **report["timings_s"]}
     try:
@@ -134,6 +141,7 @@ def run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) ->
                 result, inputs.source, inputs.target, (feat_x, feat_y), settings.dense, settings.partial
             )
             report["timings_s"]["dense"] = round(result.timings["dense"], 3)
+            report["quality"] = result.quality  # judged again with the dense map
             stage = "dense outputs"
             dense_errors = write_dense(output_dir, result, inputs, (feat_x, feat_y), report)
             picture_errors = None if dense_errors is None else (inputs.source_corr, dense_errors)

@@ -10,8 +10,12 @@ Mirror image (symmetric flip)
     noise); on a mirrored one most. ``flipped`` and ``degenerate`` are the shares of
     low-resolution source triangles whose image faces against the target or has no area
     (``spidermatch.eval.metrics`` definitions); ``mirror`` is the flipped share of those whose
-    image has an area, the figure judged (degenerate images, two corners on one target
-    vertex, say nothing about orientation and are many where the map collapses).
+    image has an area (degenerate images, two corners on one target vertex, say nothing
+    about orientation and are many where the map collapses). At a few hundred faces a
+    certified map that is right but a decimated edge off here and there flips a third of
+    its triangles too; the dense map it leads to does not. So when there is a dense map,
+    ``dense_mirror`` (the same share of its image triangles, at full resolution) must
+    agree before a map is called a mirror image (:func:`with_dense_figures`).
 Collapse
     A matching that sends many source vertices onto few target vertices (the trivial
     stay path, or costs that do not discriminate): ``distinct`` is the share of distinct
@@ -23,7 +27,9 @@ Misplaced region
     geodesic distance the map changes by more than half (:func:`distortion`). A right map
     between two poses of one body keeps them. It is judged only when the target is closed:
     on a target with holes or cuts (partial-to-partial) geodesics detour around them, and
-    right maps reached 0.066-0.218 there.
+    right maps reached 0.066-0.218 there. At a few hundred faces the decimated geodesics are
+    coarse enough for right maps to exceed the threshold too, so with a dense map its own
+    ``dense_distortion`` (full-resolution meshes) must agree.
 Not proven
     A time-limited run whose gap stays large: ``gap``.
 
@@ -41,12 +47,16 @@ import math
 
 import numpy as np
 
-from spidermatch.eval.metrics import vertex_map_consistency
+from spidermatch.eval.metrics import flipped_faces, vertex_map_consistency
 from spidermatch.geometry.geodesics import GeodesicDistances
 from spidermatch.geometry.mesh import Mesh, topology
+from spidermatch.geometry.surface import surface_positions
 
 MIRROR_SUSPECT = 0.3
 """Flipped share of the non-degenerate image triangles above which the map is called a mirror image."""
+
+DENSE_MIRROR_SUSPECT = 0.2
+"""Flipped share of the dense map's non-degenerate image triangles that confirms a mirror image."""
 
 DISTINCT_SUSPECT = 0.45
 """Share of distinct matched target vertices below which the matching is called collapsed."""
@@ -65,6 +75,13 @@ NEAR_QUANTILE = 0.2
 
 DISTORTION_SUSPECT = 0.06
 """Share of distorted pairs (:func:`distortion`) above which the map is called misplaced."""
+
+DENSE_DISTORTION_SUSPECT = 0.03
+"""The dense map's share of distorted pairs that confirms a misplaced region."""
+
+DENSE_DISTORTION_MAX_VERTICES = 50_000
+"""Meshes up to this size get ``dense_distortion`` (heat-method geodesics on both: about 1 s
+at 20 000 vertices, 8 s at 80 000, one thread); larger ones are judged at low resolution."""
 
 
 def assess(low_source: Mesh, low_target: Mesh, low_map: np.ndarray, gap: float | None) -> dict:
@@ -142,12 +159,63 @@ def distortion(source: Mesh, target: Mesh, vertex_map: np.ndarray, seed: int = 0
     return float(np.mean(np.abs(ratios / scale - 1.0) > DISTORTED))
 
 
+def dense_mirror(source: Mesh, target: Mesh, face: np.ndarray, bary: np.ndarray) -> float:
+    """Flipped share of a dense map's image triangles that have an area.
+
+    Parameters
+    ----------
+    source, target : Mesh
+        The full-resolution meshes the dense map runs between.
+    face : np.ndarray, shape (V_X,)
+        Target face of each source vertex's image point.
+    bary : np.ndarray, shape (V_X, 3)
+        Its barycentric coordinates in that face.
+
+    Returns
+    -------
+    float
+        Flipped over non-degenerate source triangles (1.0 when every image is degenerate).
+    """
+    flipped, degenerate = flipped_faces(source, target, surface_positions(target, face, bary), face, bary)
+    proper = int(np.count_nonzero(~degenerate))
+    return float(np.count_nonzero(flipped) / proper) if proper else 1.0
+
+
+def dense_figures(source: Mesh, target: Mesh, dense_map) -> dict:
+    """``dense_mirror`` and ``dense_distortion`` of a dense map (``spidermatch.dense.maps.DenseMap``).
+
+    The same figures as ``mirror`` and ``distortion``, on the full-resolution meshes; the
+    distortion only where it is judged (a closed target) and the meshes have at most
+    :data:`DENSE_DISTORTION_MAX_VERTICES` vertices each, else None.
+    """
+    small = max(source.n_verts, target.n_verts) <= DENSE_DISTORTION_MAX_VERTICES
+    judged = small and topology(target).open_boundaries == 0
+    return {
+        "dense_mirror": round(dense_mirror(source, target, dense_map.face, dense_map.bary), 4),
+        "dense_distortion": round(distortion(source, target, dense_map.vertex), 4) if judged else None,
+    }
+
+
+def with_dense_figures(quality: dict, figures: dict) -> dict:
+    """``quality`` (from :func:`assess`) with the :func:`dense_figures` added, and judged again."""
+    kept = {key: value for key, value in quality.items() if key not in ("verdict", "reasons")}
+    kept.update(figures)
+    return {**judge(kept), **kept}
+
+
+def _confirmed(suspect: bool, dense_figure: float | None, dense_threshold: float) -> bool:
+    """A symptom of the certified map, unless the dense map's figure (None: no dense map) clears it."""
+    return suspect and (dense_figure is None or dense_figure > dense_threshold)
+
+
 def judge(figures) -> dict:
-    """``verdict`` and ``reasons`` from the figures ``mirror``, ``distinct``, ``distortion`` and ``gap``."""
+    """``verdict`` and ``reasons`` from the figures (:func:`assess`, ``dense_mirror`` where there is one)."""
     reasons = []
-    if figures["mirror"] > MIRROR_SUSPECT:
+    dense = figures.get("dense_mirror")  # None: no dense map
+    if _confirmed(figures["mirror"] > MIRROR_SUSPECT, dense, DENSE_MIRROR_SUSPECT):
+        also = "" if dense is None else f" (of the dense map's, {dense:.0%})"
         reasons.append(
-            f"{figures['mirror']:.0%} of the image triangles face against the target: "
+            f"{figures['mirror']:.0%} of the image triangles face against the target{also}: "
             "likely a mirror image (left and right swapped) of the right map, at least in part"
         )
     if figures["distinct"] < DISTINCT_SUSPECT:
@@ -157,10 +225,13 @@ def judge(figures) -> dict:
         )
     collapsed = figures["distinct"] < DISTINCT_SUSPECT  # then every distance shrinks: said once
     judged = figures.get("distortion_judged", True) and not collapsed
-    if judged and (figures.get("distortion") or 0.0) > DISTORTION_SUSPECT:  # None: not measured
+    dense = figures.get("dense_distortion")
+    distorted = (figures.get("distortion") or 0.0) > DISTORTION_SUSPECT  # None: not measured
+    if judged and _confirmed(distorted, dense, DENSE_DISTORTION_SUSPECT):
+        also = "" if dense is None else f" (the dense map {dense:.0%})"
         reasons.append(
             f"the map changes {figures['distortion']:.0%} of the sampled geodesic distances by more "
-            "than half: likely a region laid onto the wrong part of the target"
+            f"than half{also}: likely a region laid onto the wrong part of the target"
         )
     gap = figures.get("gap")
     if gap is not None and math.isfinite(gap) and gap > GAP_SUSPECT:
