@@ -351,3 +351,37 @@ def test_highs_out_of_memory_keeps_its_incumbent_and_claims_no_bound():
     np.testing.assert_array_equal(stopped.x, [1.0, 0.0, 1.0])
     assert _read_result(session(status.kMemoryLimit, False), 1.0).status == "no_solution"
     assert not _read_result(session(status.kTimeLimit, True), 1.0).out_of_memory
+
+
+def dying_after_a_detached_solution(expensive, detached, lazy, graph, curve, options):
+    """Reports an expensive closed path and a cheaper solution with detached cycles, then aborts
+    (a restricted MIP dying before column generation mends its solution); on one thread, the
+    retry, it finds only the expensive path."""
+    from spidermatch.solve.progress import report_detached
+
+    x = np.zeros(lazy.n_vars)
+    x[expensive] = 1.0
+    cost = float(lazy.costs(expensive).sum())
+    if options.threads != 1:
+        report_known(incumbent=cost, bound=0.0, path=expensive)
+        report_detached(float(lazy.costs(detached).sum()), detached)
+        os.abort()
+    return SolveResult("feasible", x, cost, 0.0, 1.0, 0.1, lazy.n_vars, 1, 1, "stopped")
+
+
+def test_a_dead_process_s_detached_solution_is_mended_before_the_retry():
+    from functools import partial
+
+    from spidermatch.solve.connectivity import detached_components
+    from spidermatch.solve.seeds import stay_seed
+    from tests.test_colgen import creature_lazy
+
+    lazy = creature_lazy(24, 3)
+    path, detached = path_and_detached_copy(lazy)
+    stay = np.sort(stay_seed(lazy))
+    child = partial(dying_after_a_detached_solution, stay, detached)
+    result = solve_isolated(child, lazy, lazy.graph, lazy.curve, SolverOptions(time_limit=60.0))
+    assert result.status == "feasible" and "retried after the solver process died" in result.message
+    assert detached_components(lazy.graph, result.x) == []
+    assert result.objective == pytest.approx(lazy.costs(np.flatnonzero(result.x > 0.5)).sum())
+    assert result.objective == pytest.approx(lazy.costs(path).sum(), rel=1e-3)  # not the stay path

@@ -73,6 +73,7 @@ STOP_GRACE_S = 3.0  # after a forwarded signal, how long the child may take to a
 OVERRUN_KILL_S = 4.5  # how far past its time limit the solver process may run before it is killed
 RETRY_OPTIONS = {"mip_heuristic_effort": 0.0, "mip_heuristic_run_feasibility_jump": False}  # after a death
 RETRY_THREADS = 1  # an allocation failing on a HiGHS worker thread aborts; on its main thread it is a status
+REPAIR_AFTER_DEATH_SHARE = 0.5  # of the time left, the most a dead process's detached solution gets
 RETRY_MIN_S = 10.0  # the least time left for which a solve is retried after its process died
 # (the budget is kept within 5 s: HiGHS is interrupted at +OVERRUN_GRACE_S where it checks, the
 # process killed at +4.5 s where it does not, and the kill takes well under a second)
@@ -242,7 +243,9 @@ def _retried_after_death(solve, model, graph, curve, options, start: float, fail
     The HiGHS aborts seen (docs/solver_failures.md) were inside a primal heuristic, which only
     looks for incumbents (:data:`RETRY_OPTIONS` turns them all off), or an allocation that failed
     on one of HiGHS's worker threads under a memory limit, where nothing catches it (on its main
-    thread HiGHS catches it and stops with its incumbent: :data:`RETRY_THREADS`). The retry gets what is
+    thread HiGHS catches it and stops with its incumbent: :data:`RETRY_THREADS`). A solution with
+    detached cycles the dead process reported last is mended first (:func:`_repaired_after_death`).
+    The retry gets what is
     left of the time limit (none, if less than :data:`RETRY_MIN_S`). The result is the cheaper
     of its solution and the last closed path the dead process reported, with the larger of
     the two certified bounds (both hold for the full model). A retry that dies too, or no time
@@ -256,11 +259,43 @@ def _retried_after_death(solve, model, graph, curve, options, start: float, fail
         f"{left:.0f} s" if math.isfinite(left) else "no time limit",
     )
     extra = {**options.extra, **RETRY_OPTIONS}
+    _repaired_after_death(
+        reports, model, graph, curve, replace(options, threads=RETRY_THREADS, extra=extra), left
+    )
+    left = start + options.time_limit - time.perf_counter()
     retry_options = replace(options, time_limit=left, threads=RETRY_THREADS, extra=extra)
     retried = solve_isolated(solve, model, graph, curve, retry_options)
     if retried.status == "error":
         return replace(failed, message=f"{failed.message}; the retry died too ({retried.message})")
     return _merged_with_dead(retried, reports, model, options, time.perf_counter() - start)
+
+
+def _repaired_after_death(reports, model, graph, curve, options: SolverOptions, left: float) -> None:
+    """The dead process's last solution with detached cycles, mended into ``reports.path`` if cheaper.
+
+    A restricted MIP's first solutions often have detached cycles; column generation mends
+    them after the MIP, which a process that died inside it never reached. The mend
+    (:func:`~spidermatch.solve.reserve.repair_reported`, as for a child stopped for its
+    reserve) gets at most :data:`REPAIR_AFTER_DEATH_SHARE` of the time ``left``, in a fresh
+    process with ``options`` (the retry's); the retry gets the rest.
+    """
+    if reports.detached is None or not reports.detached_is_newer or not isinstance(model, LazyModel):
+        return
+    detached_objective, edges = reports.detached
+    best = reports.path[0] if reports.path is not None else math.inf
+    budget = replace(options, time_limit=REPAIR_AFTER_DEATH_SHARE * left)
+    logger.warning(
+        "repairing the dead solver process's last solution (cost %.6g, detached cycles) in at most %.0f s",
+        detached_objective,
+        budget.time_limit,
+    )
+    repair = functools.partial(repair_reported, edges)
+    repaired = solve_isolated(repair, model, graph, curve, budget, reserve_repair=False)
+    if repaired.x is not None and repaired.objective < best:
+        logger.info("repaired: a closed path of cost %.8g", repaired.objective)
+        reports.path = (repaired.objective, used_columns(repaired.x))
+    else:
+        logger.warning("the repair found no cheaper closed path (%s)", repaired.message)
 
 
 def _is_retry(options: SolverOptions) -> bool:
