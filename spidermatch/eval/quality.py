@@ -209,7 +209,7 @@ def _confirmed(suspect: bool, dense_figure: float | None, dense_threshold: float
 
 
 def judge(figures) -> dict:
-    """``verdict`` and ``reasons`` from the figures (:func:`assess`, ``dense_mirror`` where there is one)."""
+    """``verdict`` and ``reasons`` from the figures of :func:`assess` (and :func:`dense_figures`, if any)."""
     reasons = []
     dense = figures.get("dense_mirror")  # None: no dense map
     if _confirmed(figures["mirror"] > MIRROR_SUSPECT, dense, DENSE_MIRROR_SUSPECT):

@@ -245,11 +245,10 @@ def _retried_after_death(solve, model, graph, curve, options, start: float, fail
     on one of HiGHS's worker threads under a memory limit, where nothing catches it (on its main
     thread HiGHS catches it and stops with its incumbent: :data:`RETRY_THREADS`). A solution with
     detached cycles the dead process reported last is mended first (:func:`_repaired_after_death`).
-    The retry gets what is
-    left of the time limit (none, if less than :data:`RETRY_MIN_S`). The result is the cheaper
-    of its solution and the last closed path the dead process reported, with the larger of
-    the two certified bounds (both hold for the full model). A retry that dies too, or no time
-    to retry, leaves ``failed`` (status ``"error"``).
+    The retry gets what is left of the time limit (none, if less than :data:`RETRY_MIN_S`). The
+    result is the cheaper of its solution and the last closed path the dead process reported (or
+    mended), with the larger of the two certified bounds (both hold for the full model). A retry
+    that dies too, or no time to retry, leaves ``failed`` (status ``"error"``).
     """
     left = start + options.time_limit - time.perf_counter()
     if _is_retry(options) or left < RETRY_MIN_S:
@@ -281,21 +280,13 @@ def _repaired_after_death(reports, model, graph, curve, options: SolverOptions, 
     """
     if reports.detached is None or not reports.detached_is_newer or not isinstance(model, LazyModel):
         return
-    detached_objective, edges = reports.detached
-    best = reports.path[0] if reports.path is not None else math.inf
     budget = replace(options, time_limit=REPAIR_AFTER_DEATH_SHARE * left)
     logger.warning(
         "repairing the dead solver process's last solution (cost %.6g, detached cycles) in at most %.0f s",
-        detached_objective,
+        reports.detached[0],
         budget.time_limit,
     )
-    repair = functools.partial(repair_reported, edges)
-    repaired = solve_isolated(repair, model, graph, curve, budget, reserve_repair=False)
-    if repaired.x is not None and repaired.objective < best:
-        logger.info("repaired: a closed path of cost %.8g", repaired.objective)
-        reports.path = (repaired.objective, used_columns(repaired.x))
-    else:
-        logger.warning("the repair found no cheaper closed path (%s)", repaired.message)
+    _mend_detached(reports, model, graph, curve, budget)
 
 
 def _is_retry(options: SolverOptions) -> bool:
@@ -496,7 +487,7 @@ def _repaired_in_reserve(reports: ChildReports, model, graph, curve, start: floa
     the result is then as for a child stopped at its limit (:func:`_overran`), with the
     repaired path among the closed paths.
     """
-    detached_objective, edges = reports.detached
+    detached_objective = reports.detached[0]
     best = reports.path[0] if reports.path is not None else math.inf
     left = start + options.time_limit - time.perf_counter()
     logger.warning(
@@ -505,21 +496,29 @@ def _repaired_in_reserve(reports: ChildReports, model, graph, curve, start: floa
         "in the time left",
         left, f"{best:.6g}" if math.isfinite(best) else "nothing (none known)", detached_objective,
     )  # fmt: skip
-    repair = functools.partial(repair_reported, edges)
-    repaired = solve_isolated(
-        repair, model, graph, curve, replace(options, time_limit=max(left, 0.0)), reserve_repair=False
-    )
     words = (
         f"stopped inside HiGHS {left:.0f} s before the time limit to repair a solution with detached cycles"
     )
-    if repaired.x is not None and repaired.objective < best:
-        logger.info("repaired in the reserve: a closed path of cost %.8g", repaired.objective)
-        reports.path = (repaired.objective, used_columns(repaired.x))
-        words += " (repaired)"
-    else:
-        logger.warning("the repair in the reserve found no cheaper closed path (%s)", repaired.message)
-        words += " (no cheaper closed path found)"
+    mended = _mend_detached(reports, model, graph, curve, replace(options, time_limit=max(left, 0.0)))
+    words += " (repaired)" if mended else " (no cheaper closed path found)"
     return _overran(reports, model, time.perf_counter() - start, options, words)
+
+
+def _mend_detached(reports: ChildReports, model, graph, curve, options: SolverOptions) -> bool:
+    """Whether ``reports.detached``, repaired in a fresh process, gave a cheaper closed path.
+
+    The repair runs within ``options``'s time limit; a closed path cheaper than ``reports.path``
+    becomes ``reports.path``.
+    """
+    best = reports.path[0] if reports.path is not None else math.inf
+    repair = functools.partial(repair_reported, reports.detached[1])
+    repaired = solve_isolated(repair, model, graph, curve, options, reserve_repair=False)
+    if repaired.x is None or repaired.objective >= best:
+        logger.warning("the repair found no cheaper closed path (%s)", repaired.message)
+        return False
+    logger.info("repaired: a closed path of cost %.8g", repaired.objective)
+    reports.path = (repaired.objective, used_columns(repaired.x))
+    return True
 
 
 def _overran(reports: ChildReports, model, wall: float, options: SolverOptions, words: str | None = None):
