@@ -14,7 +14,7 @@ from spidermatch.solve.plain import solve_plain
 from spidermatch.solve.pricing import price
 from spidermatch.solve.seeds import SEED_NEIGHBOURS, stay_seed
 from spidermatch.solve.strategies import solve_with_strategy
-from spidermatch.solve.types import SolverOptions
+from spidermatch.solve.types import OUT_OF_MEMORY, SolverOptions
 from tests.test_ilp import TRIANGLE, brute_force
 
 EXACT = SolverOptions(mip_rel_gap=0.0)
@@ -192,8 +192,15 @@ def test_a_mip_stopped_above_its_outside_bound_widens_and_still_certifies_the_op
     assert_one_checked_path(lazy, solved.x)
 
 
-def test_no_wider_mip_starts_with_too_little_time_left_and_the_answer_stays_honest(monkeypatch):
-    """As above, but with too little time for step 2: the incumbent, a valid bound, `feasible`."""
+@pytest.mark.parametrize(
+    "why, message, expected",
+    [("time", "stopped", "too little for a wider MIP"), ("memory", OUT_OF_MEMORY, "ran out of memory")],
+)
+def test_no_wider_mip_starts_after_one_stopped_for_time_or_memory_and_the_answer_stays_honest(
+    monkeypatch, why, message, expected
+):
+    """As above, but with too little time for step 2, or HiGHS out of memory in step 1 (a wider MIP
+    would need more): the incumbent, a valid bound, `feasible`, and why."""
     import math
 
     import spidermatch.solve.colgen as colgen
@@ -207,42 +214,18 @@ def test_no_wider_mip_starts_with_too_little_time_left_and_the_answer_stays_hone
         calls.append(columns.size)
         start = float(lazy.costs(np.flatnonzero(incumbent > 0.5)).sum())
         return SolveResult(
-            "feasible", incumbent, start, -math.inf, math.nan, 0.0, columns.size, 1, 1, "stopped"
+            "feasible", incumbent, start, -math.inf, math.nan, 0.0, columns.size, 1, 1, message
         )
 
     monkeypatch.setattr(colgen, "_restricted_mip", first_stopped)
     monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)
-    monkeypatch.setattr(colgen, "LAST_STEP_MIN_S", 1e6)
+    if why == "time":
+        monkeypatch.setattr(colgen, "LAST_STEP_MIN_S", 1e6)
     solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, replace(EXACT, time_limit=600.0))
     assert len(calls) == 1
-    assert solved.status == "feasible" and "too little for a wider MIP" in solved.message
+    assert solved.status == "feasible" and expected in solved.message
     assert solved.bound <= plain.objective * (1 + 1e-9) <= solved.objective * (1 + 1e-9)
     assert solved.gap == pytest.approx((solved.objective - solved.bound) / abs(solved.objective), rel=1e-6)
-
-
-def test_a_mip_out_of_memory_ends_the_run_with_its_incumbent_and_no_wider_mip(monkeypatch):
-    """HiGHS stops a restricted MIP for a failed allocation: no wider MIP, `feasible`, and why."""
-    import math
-
-    import spidermatch.solve.colgen as colgen
-    from spidermatch.solve.types import OUT_OF_MEMORY, SolveResult
-
-    lazy = creature_lazy(24, 3)
-    plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
-    calls = []
-
-    def out_of_memory(lazy, columns, options, incumbent, *rest):
-        calls.append(columns.size)
-        start = float(lazy.costs(np.flatnonzero(incumbent > 0.5)).sum())
-        return SolveResult(
-            "feasible", incumbent, start, -math.inf, math.nan, 0.0, columns.size, 1, 1, OUT_OF_MEMORY
-        )
-
-    monkeypatch.setattr(colgen, "_restricted_mip", out_of_memory)
-    monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)
-    solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, replace(EXACT, time_limit=600.0))
-    assert len(calls) == 1 and solved.status == "feasible" and "ran out of memory" in solved.message
-    assert solved.bound <= plain.objective * (1 + 1e-9) <= solved.objective * (1 + 1e-9)
     assert_one_checked_path(lazy, solved.x)
 
 
