@@ -601,3 +601,32 @@ def test_stop_when_judges_the_cheapest_closed_path_not_an_incumbent_with_detache
     )  # fmt: skip
     session._on_callback(kinds.kCallbackMipInterrupt, "", report, SimpleNamespace(user_interrupt=False), None)
     assert seen == [pytest.approx(costs @ optimum)]  # the detached one is cheaper but not a closed path
+
+
+def test_a_mip_out_of_memory_with_detached_cycles_is_not_solved_again(monkeypatch):
+    """HiGHS out of memory on a solution with detached cycles: cuts kept for later solves, no
+    re-solve (it would need more memory), the connected start, no bound claimed, and why."""
+    import math
+
+    from spidermatch.solve.cuts import CutPool, solve_with_cuts
+    from spidermatch.solve.highs import HighsSession
+    from spidermatch.solve.types import OUT_OF_MEMORY, SolveResult
+
+    graph, costs, optimum, detached = square_instance_with_detached_copy()
+    model = build_model(graph, SpiderCurve(np.array([0, 1, 0, 2]), 3), costs)
+    runs = []
+
+    def out_of_memory_with_a_detached_cycle(self):
+        runs.append(self)
+        value = float(costs @ detached)
+        return SolveResult(
+            "feasible", detached, value, -math.inf, math.nan, 0.0, self.n_vars, self.n_rows, self.nnz,
+            f"{OUT_OF_MEMORY}: test",
+        )  # fmt: skip
+
+    monkeypatch.setattr(HighsSession, "run", out_of_memory_with_a_detached_cycle)
+    pool = CutPool()
+    result = solve_with_cuts(model, graph, SolverOptions(), incumbent=optimum, pool=pool)
+    assert sum(run is runs[0] for run in runs) == 1  # the MIP's session ran once (the repair's MIPs aside)
+    assert result.status == "feasible" and np.array_equal(result.x, optimum) and result.out_of_memory
+    assert result.bound == -math.inf and pool.rows is not None

@@ -214,12 +214,16 @@ def solve_with_cuts(
         left = remaining(options, start)
         if left.time_limit <= 0:
             return _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds)
-        # a run stopped early may spend what is left on the repair; otherwise a share of it
-        budget = left.time_limit if session.stopped_early else REPAIR_TIME_SHARE * left.time_limit
+        # a run stopped early (or out of memory: no re-solve) may spend what is left on the
+        # repair; otherwise a share of it
+        last_run = session.stopped_early or result.out_of_memory
+        budget = left.time_limit if last_run else REPAIR_TIME_SHARE * left.time_limit
         left = replace(left, time_limit=min(REPAIR_TIME_S, budget))
         repaired = _repaired(sub, graph, column_ids, result.x, affected, pool, left)
-        if session.stopped_early:  # the caller has what it needs, or the time is the repair's
+        if last_run:  # the caller has what it needs, the time is the repair's, or memory is short
             message = "stopped early (on request, or to leave time for the repair); detached cycles cut off"
+            if result.out_of_memory:  # a re-solve with the cuts would need more memory still
+                message = f"{result.message}; detached cycles cut off, no re-solve"
             return _stopped_while_separating(
                 result, graph, session, columns, n_vars, start, rounds, message, repaired
             )
