@@ -465,9 +465,9 @@ def match(
     return result
 
 
-def _log_quality(quality: dict, when: str = "") -> None:
+def _log_quality(quality: dict) -> None:
     log = logger.warning if quality["verdict"] == "suspect" else logger.info
-    log("quality%s: %s%s", when, quality["verdict"], "".join(f"; {r}" for r in quality["reasons"]))
+    log("quality: %s%s", quality["verdict"], "".join(f"; {r}" for r in quality["reasons"]))
 
 
 def _judged_with_dense_map(result: MatchResult, source: Mesh, target: Mesh) -> None:

@@ -353,7 +353,7 @@ def test_highs_out_of_memory_keeps_its_incumbent_and_claims_no_bound():
     assert not _read_result(session(status.kTimeLimit, True), 1.0).out_of_memory
 
 
-def dying_after_a_detached_solution(expensive, detached, lazy, graph, curve, options):
+def dying_after_a_detached_solution(expensive, detached, lazy, graph, curve, options, always_dies=False):
     """Reports an expensive closed path and a cheaper solution with detached cycles, then aborts
     (a restricted MIP dying before column generation mends its solution); on one thread, the
     retry, it finds only the expensive path."""
@@ -362,7 +362,7 @@ def dying_after_a_detached_solution(expensive, detached, lazy, graph, curve, opt
     x = np.zeros(lazy.n_vars)
     x[expensive] = 1.0
     cost = float(lazy.costs(expensive).sum())
-    if options.threads != 1:
+    if options.threads != 1 or always_dies:
         report_known(incumbent=cost, bound=0.0, path=expensive)
         report_detached(float(lazy.costs(detached).sum()), detached)
         os.abort()
@@ -385,3 +385,8 @@ def test_a_dead_process_s_detached_solution_is_mended_before_the_retry():
     assert detached_components(lazy.graph, result.x) == []
     assert result.objective == pytest.approx(lazy.costs(np.flatnonzero(result.x > 0.5)).sum())
     assert result.objective == pytest.approx(lazy.costs(path).sum(), rel=1e-3)  # not the stay path
+    # the retry dies too: the mended path is the result, not an error
+    child = partial(dying_after_a_detached_solution, stay, detached, always_dies=True)
+    twice = solve_isolated(child, lazy, lazy.graph, lazy.curve, SolverOptions(time_limit=60.0))
+    assert twice.status == "feasible" and "the retry died too" in twice.message and twice.bound == 0.0
+    assert twice.objective == pytest.approx(lazy.costs(path).sum(), rel=1e-3)

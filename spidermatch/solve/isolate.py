@@ -21,10 +21,12 @@ usually the child too). The parent forwards them; the child stops HiGHS and send
 knew, and the parent raises :class:`~spidermatch.shutdown.RunInterrupted` with it. A child
 that has not answered ``STOP_GRACE_S`` after that is killed.
 
-Retry: every HiGHS abort seen was inside a primal heuristic (docs/solver_failures.md). A
-child that dies is followed by one more in a fresh process with all of them off
-(:data:`RETRY_OPTIONS`), over what is left of the time limit; the cheaper of its solution and
-the dead child's last reported closed path is the result.
+Retry: the HiGHS aborts seen were inside a primal heuristic, or an allocation that failed on
+one of HiGHS's worker threads under a memory limit (docs/solver_failures.md). A child that dies
+is followed by one more in a fresh process with the heuristics off (:data:`RETRY_OPTIONS`) and
+HiGHS on one thread (:data:`RETRY_THREADS`), over what is left of the time limit, after the
+dead child's last solution with detached cycles is repaired; the cheapest of the retry's
+solution and the closed paths known (reported or repaired) is the result.
 
 Time limit: HiGHS does not check its time limit or interrupt flag in some phases (a MIP's
 root analytic-centre computation, presolve). A child still solving ``OVERRUN_KILL_S``
@@ -248,7 +250,8 @@ def _retried_after_death(solve, model, graph, curve, options, start: float, fail
     The retry gets what is left of the time limit (none, if less than :data:`RETRY_MIN_S`). The
     result is the cheaper of its solution and the last closed path the dead process reported (or
     mended), with the larger of the two certified bounds (both hold for the full model). A retry
-    that dies too, or no time to retry, leaves ``failed`` (status ``"error"``).
+    that dies too, or no time to retry, leaves ``failed`` (status ``"error"``), or the closed path
+    known, if there is one (:func:`_kept_after_death`).
     """
     left = start + options.time_limit - time.perf_counter()
     if _is_retry(options) or left < RETRY_MIN_S:
@@ -262,11 +265,27 @@ def _retried_after_death(solve, model, graph, curve, options, start: float, fail
         reports, model, graph, curve, replace(options, threads=RETRY_THREADS, extra=extra), left
     )
     left = start + options.time_limit - time.perf_counter()
+    if left < RETRY_MIN_S:  # the repair took the time
+        return _kept_after_death(failed, reports, model, options, start, "no time left for a retry")
     retry_options = replace(options, time_limit=left, threads=RETRY_THREADS, extra=extra)
     retried = solve_isolated(solve, model, graph, curve, retry_options)
     if retried.status == "error":
-        return replace(failed, message=f"{failed.message}; the retry died too ({retried.message})")
+        return _kept_after_death(
+            failed, reports, model, options, start, f"the retry died too ({retried.message})"
+        )
     return _merged_with_dead(retried, reports, model, options, time.perf_counter() - start)
+
+
+def _kept_after_death(failed: SolveResult, reports, model, options: SolverOptions, start: float, words: str):
+    """``failed``, or, once a closed path is known (reported or mended), that path with the last bound.
+
+    A process that died reported its figures, not always a path; a path known after the death
+    (the repair of its last solution) is a matching like any other: "feasible" (or "optimal",
+    within the gap) rather than an error.
+    """
+    if reports.path is None:
+        return replace(failed, message=f"{failed.message}; {words}")
+    return _overran(reports, model, time.perf_counter() - start, options, f"{failed.message}; {words}")
 
 
 def _repaired_after_death(reports, model, graph, curve, options: SolverOptions, left: float) -> None:
