@@ -250,12 +250,14 @@ def _retried_after_death(solve, model, graph, curve, options, start: float, fail
     The retry gets what is left of the time limit (none, if less than :data:`RETRY_MIN_S`). The
     result is the cheaper of its solution and the last closed path the dead process reported (or
     mended), with the larger of the two certified bounds (both hold for the full model). A retry
-    that dies too, or no time to retry, leaves ``failed`` (status ``"error"``), or the closed path
-    known, if there is one (:func:`_kept_after_death`).
+    that dies too, or no time to retry, leaves the closed path known, if there is one, else
+    ``failed`` (status ``"error"``; :func:`_kept_after_death`).
     """
     left = start + options.time_limit - time.perf_counter()
-    if _is_retry(options) or left < RETRY_MIN_S:
+    if _is_retry(options):  # the retry's own death: the first death's caller decides
         return failed
+    if left < RETRY_MIN_S:
+        return _kept_after_death(failed, reports, model, options, start, "no time left for a retry")
     logger.warning(
         "retrying the solve in a fresh solver process, HiGHS on one thread with its heuristics off (%s left)",
         f"{left:.0f} s" if math.isfinite(left) else "no time limit",
