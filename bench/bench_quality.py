@@ -104,7 +104,9 @@ def read_pair(path: Path) -> dict | None:
         "distortion_judged": quality.get("distortion_judged", True),
         "sparse_error": (report.get("geodesic_error") or {}).get("mean"),
         "dense_error": dense,
-        "dense_mirror": dense_mirror(dense_figures),
+        # the verdict's own dense figures; the mirror one from the dense report for older runs
+        "dense_mirror": quality.get("dense_mirror", dense_mirror(dense_figures)),
+        "dense_distortion": quality.get("dense_distortion"),
         "reasons": "; ".join(quality["reasons"]),
     }
 

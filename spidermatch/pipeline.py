@@ -470,12 +470,25 @@ def _log_quality(quality: dict) -> None:
     log("quality: %s%s", quality["verdict"], "".join(f"; {r}" for r in quality["reasons"]))
 
 
-def _judged_with_dense_map(result: MatchResult, source: Mesh, target: Mesh) -> None:
-    """``result.quality`` judged again with the dense map's figures, and logged."""
-    if result.quality is None or result.dense is None:
+def _judged_with_dense_map(result: MatchResult, source: Mesh, target: Mesh, dense: DenseMap) -> None:
+    """``result.quality`` judged again with the figures of ``dense`` (``source`` to ``target``), and logged.
+
+    Should those figures fail (they compute geodesics on both meshes), the certified map's
+    verdict stands, said in the log.
+    """
+    if result.quality is None:
         return
     before = result.quality
-    result.quality = with_dense_figures(before, dense_figures(source, target, result.dense))
+    try:
+        figures = dense_figures(source, target, dense)
+    except Exception as error:  # an extra figure must not cost the matching
+        logger.warning(
+            "the dense map's quality figures failed (%s): the certified map's verdict stands", error
+        )
+        logger.debug("dense figures", exc_info=True)
+        _log_quality(before)
+        return
+    result.quality = with_dense_figures(before, figures)
     quality = result.quality
     if len(quality["reasons"]) < len(before["reasons"]):  # a symptom the dense map does not show
         distortion = quality["dense_distortion"]
@@ -568,7 +581,7 @@ def add_dense_map(
             whole = target.centred()
             covered = covered_target(whole, result.dense.points(whole), mean_edge_length(source))
             result.dense = dataclasses.replace(result.dense, covered=covered)
-    _judged_with_dense_map(result, source, target)
+    _judged_with_dense_map(result, *matched, dense)  # on the meshes matched (small holes closed)
 
 
 def _read_solution(result: MatchResult, families: tuple = FAMILIES) -> None:
