@@ -223,9 +223,14 @@ class MatchResult:
                 "is infeasible): try a higher resolution or another curve seed"
             )
         if status == "no_solution":
+            remedy = (
+                "give the run more memory"  # more time would not help
+                if self.solve.out_of_memory
+                else "raise solver.time_limit"
+            )
             raise NoSolutionError(
                 f"the solver stopped without any solution ({self.solve.message}) after "
-                f"{self.solve.wall_time:.0f} s: raise solver.time_limit, or match at a lower resolution "
+                f"{self.solve.wall_time:.0f} s: {remedy}, or match at a lower resolution "
                 f"(this run: {self.graph.n_layers} curve positions x {self.graph.n_target} target vertices)"
             )
         if status == "error" or self.low_map is None:

@@ -12,7 +12,7 @@ import pytest
 from spidermatch.solve import isolate
 from spidermatch.solve.isolate import KnownFigures, describe_exit, solve_isolated
 from spidermatch.solve.progress import report_known
-from spidermatch.solve.types import SolveResult, SolverOptions
+from spidermatch.solve.types import OUT_OF_MEMORY, SolveResult, SolverOptions
 
 MODEL = SimpleNamespace(n_vars=7, n_rows=3, nnz=12)
 
@@ -394,3 +394,15 @@ def test_a_dead_process_s_detached_solution_is_mended_before_the_retry():
     twice = solve_isolated(child, lazy, lazy.graph, lazy.curve, SolverOptions(time_limit=60.0))
     assert twice.status == "feasible" and "the retry died too" in twice.message and twice.bound == 0.0
     assert twice.objective == pytest.approx(lazy.costs(path).sum(), rel=1e-3)
+
+
+@pytest.mark.parametrize(
+    "message, remedy", [("Time limit reached", "raise solver.time_limit"), (OUT_OF_MEMORY, "more memory")]
+)
+def test_a_run_without_a_solution_names_the_remedy_for_its_stop(message, remedy):
+    from spidermatch.pipeline import MatchResult, NoSolutionError
+
+    solved = SolveResult("no_solution", None, math.inf, 1.0, math.nan, 3.0, 7, 3, 12, message)
+    result = MatchResult(None, None, None, SimpleNamespace(n_layers=10, n_target=20), solved)
+    with pytest.raises(NoSolutionError, match=remedy):
+        result.raise_for_status()
