@@ -332,3 +332,32 @@ def test_every_strategy_raises_the_one_lp_not_solved():
     from spidermatch.solve import colgen, rcfix, types
 
     assert colgen.LpNotSolved is rcfix.LpNotSolved is types.LpNotSolved
+
+
+def test_a_wider_mip_out_of_memory_without_a_solution_keeps_the_last_step_and_says_why(monkeypatch):
+    import math
+
+    import spidermatch.solve.colgen as colgen
+    from spidermatch.solve.types import SolveResult
+
+    lazy = creature_lazy(24, 3)
+    plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
+    calls = []
+
+    def stopped_then_out_of_memory(lazy, columns, options, incumbent, *rest):
+        calls.append(columns.size)
+        if len(calls) > 1:
+            return SolveResult(
+                "no_solution", None, math.inf, -math.inf, math.nan, 0.0, 1, 1, 1, OUT_OF_MEMORY
+            )
+        start = float(lazy.costs(np.flatnonzero(incumbent > 0.5)).sum())
+        return SolveResult(
+            "feasible", incumbent, start, -math.inf, math.nan, 0.0, columns.size, 1, 1, "stopped"
+        )
+
+    monkeypatch.setattr(colgen, "_restricted_mip", stopped_then_out_of_memory)
+    monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)
+    solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, replace(EXACT, time_limit=600.0))
+    assert len(calls) == 2 and solved.status == "feasible" and "ran out of memory" in solved.message
+    assert solved.bound <= plain.objective * (1 + 1e-9) <= solved.objective * (1 + 1e-9)
+    assert_one_checked_path(lazy, solved.x)

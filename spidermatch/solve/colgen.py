@@ -340,6 +340,8 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
             stop.known.update(interrupted_full_model_figures(stop.known, lp.bound, outside))
             raise
         if result.x is None:
+            if result.out_of_memory and best is not None:  # keep the last step's, and say why
+                return replace(best, status="feasible", message=_out_of_memory(columns))
             break  # time limit before a solution of this step: keep the last one
         # both are valid lower bounds for the full model (L(y) alone may already be close enough)
         bound = max(lp.bound, min(result.bound, outside))
@@ -360,8 +362,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         if result.status not in ("optimal", "feasible"):
             return replace(best, status="feasible")
         if result.out_of_memory:  # a wider MIP would need more
-            message = f"not certified: the restricted MIP over {len(columns)} columns ran out of memory"
-            return replace(best, status="feasible", message=message)
+            return replace(best, status="feasible", message=_out_of_memory(columns))
         seconds_left = remaining(options, start).time_limit
         if too_little_time_for_a_step(options, seconds_left):
             message = f"not certified: {seconds_left:.1f} s left, too little for a wider MIP ({best.message})"
@@ -374,6 +375,10 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     if best is None:
         return replace(result, bound=lp.bound, gap=math.nan)
     return replace(best, status="feasible", message=f"not certified within {MAX_STEPS} steps")
+
+
+def _out_of_memory(columns: np.ndarray) -> str:
+    return f"not certified: the restricted MIP over {len(columns)} columns ran out of memory"
 
 
 def _with_nearby_repair(
