@@ -105,14 +105,14 @@ def read_pair(path: Path) -> dict | None:
         "sparse_error": (report.get("geodesic_error") or {}).get("mean"),
         "dense_error": dense,
         # the verdict's own dense figures; the mirror one from the dense report for older runs
-        "dense_mirror": quality.get("dense_mirror", dense_mirror(dense_figures)),
+        "dense_mirror": quality.get("dense_mirror", mirror_from_dense_report(dense_figures)),
         "dense_distortion": quality.get("dense_distortion"),
         "reasons": "; ".join(quality["reasons"]),
     }
 
 
-def dense_mirror(figures: dict) -> float | None:
-    """Flipped share of the dense map's non-degenerate image triangles (None without a dense map)."""
+def mirror_from_dense_report(figures: dict) -> float | None:
+    """``dense_mirror`` from a dense report's ``flipped`` and ``degenerate`` (None without a dense map)."""
     if "flipped" not in figures:
         return None
     return round(figures["flipped"] / max(1.0 - figures.get("degenerate", 0.0), 1e-12), 4)

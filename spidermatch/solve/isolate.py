@@ -262,15 +262,12 @@ def _retried_after_death(solve, model, graph, curve, options, start: float, fail
         "retrying the solve in a fresh solver process, HiGHS on one thread with its heuristics off (%s left)",
         f"{left:.0f} s" if math.isfinite(left) else "no time limit",
     )
-    extra = {**options.extra, **RETRY_OPTIONS}
-    _repaired_after_death(
-        reports, model, graph, curve, replace(options, threads=RETRY_THREADS, extra=extra), left
-    )
+    retry_options = replace(options, threads=RETRY_THREADS, extra={**options.extra, **RETRY_OPTIONS})
+    _repaired_after_death(reports, model, graph, curve, retry_options, left)
     left = start + options.time_limit - time.perf_counter()
     if left < RETRY_MIN_S:  # the repair took the time
         return _kept_after_death(failed, reports, model, options, start, "no time left for a retry")
-    retry_options = replace(options, time_limit=left, threads=RETRY_THREADS, extra=extra)
-    retried = solve_isolated(solve, model, graph, curve, retry_options)
+    retried = solve_isolated(solve, model, graph, curve, replace(retry_options, time_limit=left))
     if retried.status == "error":
         return _kept_after_death(
             failed, reports, model, options, start, f"the retry died too ({retried.message})"
