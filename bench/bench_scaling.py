@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import itertools
 import json
 import multiprocessing as mp
 import resource
@@ -45,10 +46,11 @@ def run_instance(task: tuple) -> dict:
     )
     highs = rest[0] if rest else {}  # extra HiGHS options for every solve (bench_solve.py --highs)
     tour = rest[1] if len(rest) > 1 else "christofides"
+    curve_seed = rest[2] if len(rest) > 2 else 0
     if log_dir:  # the solver's INFO log of this instance, one file per instance
         import logging
 
-        name = f"{pair[0]}_{pair[1]}_{faces}_{strategy}.log"
+        name = f"{pair[0]}_{pair[1]}_{faces}_{strategy}_{tour}_seed{curve_seed}.log"
         logging.basicConfig(filename=str(Path(log_dir) / name), level=logging.INFO, force=True)
     from spidermatch.eval.errors import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match
@@ -63,6 +65,7 @@ def run_instance(task: tuple) -> dict:
         strategy=strategy,
         curve_matching=matching,
         curve_tour=tour,
+        curve_seed=curve_seed,
         solver=SolverOptions(time_limit=time_limit, extra=highs),
     )
     try:
@@ -80,6 +83,7 @@ def run_instance(task: tuple) -> dict:
         "strategy": strategy,
         "curve_matching": matching,
         "curve_tour": tour,
+        "curve_seed": curve_seed,
         "adapt_steps": adapt_steps,
         "status": solved.status,
         "columns_built": _columns_built(strategy, solved, result.graph.n_edges),
@@ -94,6 +98,7 @@ def run_instance(task: tuple) -> dict:
         "check": None if result.check is None else bool(result.check.ok),
         "geo_err": None,
         "message": solved.message,
+        "tours": tours_tried(result.tours),
     }
     row.update({f"{stage}_s": round(result.timings.get(stage, 0.0), 2) for stage in STAGES[1:]})
     row["features_s"] = round(features_s, 2)
@@ -103,6 +108,15 @@ def run_instance(task: tuple) -> dict:
         row["geo_err"] = round(errors.mean, 4)
     row.update(peak_memory())
     return row
+
+
+def tours_tried(tours: list[dict]) -> str | None:
+    """``curve_tour="auto"``: each tour tried as tour:status:gap:seconds, the kept one starred."""
+    if not tours:
+        return None
+    return "; ".join(
+        f"{'*' if t['chosen'] else ''}{t['tour']}:{t['status']}:{t['gap']}:{t['solve_s']:.0f}s" for t in tours
+    )
 
 
 def _columns_built(strategy: str, solved, full_columns: int) -> int | None:
@@ -167,7 +181,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--faces", nargs="+", type=int, default=[500, 1000, 2000, 4000])
     parser.add_argument("--strategies", nargs="+", default=["colgen", "rcfix"])
     parser.add_argument("--curve-matching", default="greedy", choices=("greedy", "blossom"))
-    parser.add_argument("--curve-tour", default="christofides", choices=("christofides", "two_opt"))
+    parser.add_argument("--curve-tour", default="christofides", choices=("christofides", "two_opt", "auto"))
+    parser.add_argument(
+        "--curve-seeds", nargs="+", type=int, default=[0], help="SpiderCurve start-vertex seeds, one run each"
+    )
     parser.add_argument("--time-limit", type=float, default=600.0, help="seconds per solve")
     parser.add_argument("--full-model-columns", type=float, default=2.0e7)
     parser.add_argument("--out", default="bench/results/solver_scaling_faust_val.json")
@@ -183,7 +200,7 @@ def main(argv: list[str] | None = None) -> None:
     for faces in args.faces:
         for pair_text in args.pairs:
             pair = tuple(pair_text.split(":"))
-            for strategy in args.strategies:
+            for strategy, curve_seed in itertools.product(args.strategies, args.curve_seeds):
                 full = FULL_MODEL_COLUMNS_PER_FACE2 * faces**2
                 if strategy != "colgen" and full > args.full_model_columns:
                     row = skipped_row(pair, faces, strategy, args.full_model_columns)
@@ -192,7 +209,8 @@ def main(argv: list[str] | None = None) -> None:
                     task = (args.data, pair, faces, strategy, *features)
                     start = time.perf_counter()
                     with context.Pool(1) as pool:
-                        extra = (args.time_limit, args.curve_matching, args.log_dir, {}, args.curve_tour)
+                        curve = (args.curve_tour, curve_seed)
+                        extra = (args.time_limit, args.curve_matching, args.log_dir, {}, *curve)
                         row = pool.apply(run_instance, (task + extra,))
                     row["process_s"] = round(time.perf_counter() - start, 1)
                 rows.append(row)

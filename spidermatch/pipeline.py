@@ -41,14 +41,14 @@ from spidermatch.model.correspondence import (
     extract_path,
 )
 from spidermatch.model.costs import RobustLoss, feature_cost_matrix, unit_rows
-from spidermatch.model.curve import SpiderCurve, spider_curve
+from spidermatch.model.curve import AUTO_TOUR, TOURS, SpiderCurve, spider_curve
 from spidermatch.model.ilp import FAMILIES, IlpModel
 from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import ProductGraph, build_product_graph
 from spidermatch.model_size import check_model_fits
 from spidermatch.solve.isolate import solve_isolated
 from spidermatch.solve.strategies import LAZY_STRATEGIES, solve_with_strategy, strategy_for
-from spidermatch.solve.types import SolveResult, SolverOptions
+from spidermatch.solve.types import SolveResult, SolverOptions, finite_or_none
 from spidermatch.validate import check_settings
 
 logger = logging.getLogger(__name__)
@@ -109,7 +109,8 @@ class MatchSettings:
     curve_matching : str
         Odd-vertex matching of the SpiderCurve's Christofides tour: "greedy" or "blossom".
     curve_tour : str
-        "christofides" (the paper's tour) or "two_opt" (shortened; fewer self-intersections).
+        "christofides" (the paper's tour), "two_opt" (shortened; fewer self-intersections) or
+        "auto" (the first, then the second unless certified: :data:`AUTO_TOUR_SHARE`).
     loss : RobustLoss
     constraints : tuple of str
         Constraint families to impose (all four by default).
@@ -183,6 +184,10 @@ class MatchResult:
         (``MatchSettings.close_small_holes``), None for a mesh matched as given. ``source``,
         ``target`` and the curve belong to them; ``to_full``, the pairs and the dense map name
         only the given meshes' vertices.
+    tours : list of dict
+        With ``curve_tour="auto"``: each SpiderCurve tour tried, its status, objective, bound,
+        gap and solve time, and which was kept (``curve`` and ``solve`` are that tour's).
+        Empty otherwise.
 
     """
 
@@ -200,6 +205,7 @@ class MatchResult:
     quality: dict | None = None
     pair: PairKind | None = None
     closed: tuple = (None, None)
+    tours: list = field(default_factory=list)
 
     @property
     def dense_map(self) -> np.ndarray | None:
@@ -244,8 +250,9 @@ def _stage(timings: dict, name: str):
     logger.info("%s ...", name)
     start = time.perf_counter()
     yield
-    timings[name] = time.perf_counter() - start
-    logger.info("%s done in %.2f s", name, timings[name])
+    seconds = time.perf_counter() - start
+    timings[name] = timings.get(name, 0.0) + seconds  # a stage run again (two tours) adds up
+    logger.info("%s done in %.2f s", name, seconds)
 
 
 def source_resolution(source: Mesh, target: Mesh, settings: MatchSettings) -> int:
@@ -436,24 +443,13 @@ def match(
     check_settings(settings)
     timings: dict = {}
     closed = closed_copies(source, target, settings)
-    low_x, low_y, curve, graph, model = prepare(
-        source, target, source_features, target_features, settings, timings, closed
-    )
-    with _stage(timings, "solve"):
-        solve = partial(solve_with_strategy, settings.strategy)
-        if settings.isolate_solver:
-            solved = solve_isolated(solve, model, graph, curve, settings.solver)
-        else:
-            solved = solve(model, graph, curve, settings.solver)
-        solved = within_optimal_gap(solved)
-    logger.info(
-        "solver: %s, objective %.6g, bound %.6g, gap %.2e",
-        solved.status,
-        solved.objective,
-        solved.bound,
-        solved.gap,
-    )
-    result = MatchResult(low_x, low_y, curve, graph, solved, timings=timings, closed=closed)
+    features = (source_features, target_features)
+    if settings.curve_tour == AUTO_TOUR:
+        attempt, tours = _solved_with_tours_in_turn(source, target, features, settings, timings, closed)
+    else:
+        attempt, tours = _prepared_and_solved(source, target, features, settings, timings, closed), []
+    low_x, low_y, curve, graph, model, solved = attempt
+    result = MatchResult(low_x, low_y, curve, graph, solved, timings=timings, closed=closed, tours=tours)
     nonzeros = getattr(model, "nnz", None)  # a LazyModel (colgen) never builds the full matrix
     result.model_size = {"variables": model.n_vars, "rows": model.n_rows, "nonzeros": nonzeros}
     if solved.x is not None:
@@ -468,6 +464,103 @@ def match(
     elif announce_quality and result.quality is not None:
         _log_quality(result.quality)
     return result
+
+
+AUTO_TOUR_SHARE = 0.4
+"""With ``curve_tour="auto"``: the share of the solver's time limit that the paper's tour
+(the first of :data:`~spidermatch.model.curve.TOURS`) gets; the shortened tour gets the rest."""
+
+MIN_SECOND_TOUR_S = 10.0
+"""The least time left for which ``curve_tour="auto"`` still tries the second tour."""
+
+
+def _prepared_and_solved(
+    source: Mesh, target: Mesh, features: tuple, settings: MatchSettings, timings: dict, closed: tuple
+) -> tuple:
+    """:func:`prepare` and solve with ``settings.curve_tour``; (low_x, low_y, curve, graph, model, solved)."""
+    low_x, low_y, curve, graph, model = prepare(source, target, *features, settings, timings, closed)
+    with _stage(timings, "solve"):
+        solve = partial(solve_with_strategy, settings.strategy)
+        if settings.isolate_solver:
+            solved = solve_isolated(solve, model, graph, curve, settings.solver)
+        else:
+            solved = solve(model, graph, curve, settings.solver)
+        solved = within_optimal_gap(solved)
+    logger.info(
+        "solver (%s tour): %s, objective %.6g, bound %.6g, gap %.2e",
+        settings.curve_tour,
+        solved.status,
+        solved.objective,
+        solved.bound,
+        solved.gap,
+    )
+    return low_x, low_y, curve, graph, model, solved
+
+
+def _solved_with_tours_in_turn(
+    source: Mesh, target: Mesh, features: tuple, settings: MatchSettings, timings: dict, closed: tuple
+) -> tuple[tuple, list[dict]]:
+    """``curve_tour="auto"``: the paper's SpiderCurve, then, unless certified, the shortened one.
+
+    The paper's tour gets :data:`AUTO_TOUR_SHARE` of the time limit; if its solve ends neither
+    certified nor infeasible, the 2-opt tour is solved in the time the first left. Each is a
+    matching problem of its own (another curve, so other objective values): the result is the
+    certified one, else the one with the smaller gap (a matching before none).
+
+    Returns
+    -------
+    attempt : tuple
+        (low_x, low_y, curve, graph, model, solved) of the chosen tour.
+    tours : list of dict
+        Per tour tried: ``tour``, ``status``, ``objective``, ``bound``, ``gap``, ``solve_s``, ``chosen``.
+    """
+    limit = settings.solver.time_limit
+    first_limit = AUTO_TOUR_SHARE * limit if math.isfinite(limit) else limit
+    attempts = [_tour_attempt(source, target, features, settings, timings, closed, TOURS[0], first_limit)]
+    first = attempts[0][-1]
+    left = limit - first.wall_time
+    if first.status not in ("optimal", "infeasible") and left >= MIN_SECOND_TOUR_S:
+        message = "the %s tour ended %s: trying the %s tour in the %.0f s left"
+        logger.info(message, TOURS[0], first.status, TOURS[1], left)
+        attempts.append(_tour_attempt(source, target, features, settings, timings, closed, TOURS[1], left))
+    chosen = min(range(len(attempts)), key=lambda k: _tour_rank(attempts[k][-1]))
+    tours = [
+        {
+            "tour": TOURS[k],
+            "status": solved.status,
+            "objective": finite_or_none(solved.objective),
+            "bound": finite_or_none(solved.bound),
+            "gap": finite_or_none(solved.gap),
+            "solve_s": round(solved.wall_time, 3),
+            "chosen": k == chosen,
+        }
+        for k, (*_, solved) in enumerate(attempts)
+    ]
+    if len(attempts) > 1:
+        logger.info("the %s tour's result is kept (%s)", TOURS[chosen], attempts[chosen][-1].status)
+    return attempts[chosen], tours
+
+
+def _tour_attempt(
+    source: Mesh,
+    target: Mesh,
+    features: tuple,
+    settings: MatchSettings,
+    timings: dict,
+    closed: tuple,
+    tour: str,
+    time_limit: float,
+) -> tuple:
+    """One tour of ``curve_tour="auto"``: :func:`_prepared_and_solved` with that tour and time limit."""
+    solver = dataclasses.replace(settings.solver, time_limit=time_limit)
+    tried = dataclasses.replace(settings, curve_tour=tour, solver=solver)
+    return _prepared_and_solved(source, target, features, tried, timings, closed)
+
+
+def _tour_rank(solved: SolveResult) -> tuple:
+    """Sort key of a tour's result: certified first, then with a matching, then by gap."""
+    gap = solved.gap if math.isfinite(solved.gap) else math.inf
+    return (solved.status != "optimal", solved.x is None, gap)
 
 
 def _log_quality(quality: dict) -> None:

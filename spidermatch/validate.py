@@ -13,7 +13,7 @@ import logging
 
 from spidermatch.dense.settings import settings_problems as dense_settings_problems
 from spidermatch.geometry.mesh import Mesh, MeshError
-from spidermatch.model.curve import MATCHINGS, TOURS
+from spidermatch.model.curve import MATCHINGS, TOUR_SETTINGS
 from spidermatch.values import is_finite, is_number, is_whole, show
 
 logger = logging.getLogger(__name__)
@@ -118,8 +118,7 @@ def costs_and_curve_problems(cfg) -> list[str]:
         problems.append(
             f"curve.decimation={show(cfg.curve.get('decimation'))}: choose from {', '.join(DECIMATIONS)}"
         )
-    if cfg.curve.get("tour", "christofides") not in TOURS:
-        problems.append(f"curve.tour={show(cfg.curve.get('tour'))}: choose from {', '.join(TOURS)}")
+    problems.append(tour_problem(cfg.curve.get("tour", "christofides"), "curve.tour"))
     if cfg.curve.get("matching", "greedy") not in MATCHINGS:
         problems.append(
             f"curve.matching={show(cfg.curve.get('matching'))}: choose from {', '.join(MATCHINGS)}"
@@ -224,7 +223,15 @@ def check_settings(settings, solver_prefix: str = "solver.") -> None:
     problems.append(constraints_problem(settings.constraints, FAMILIES))
     if settings.decimation not in DECIMATIONS:
         problems.append(f"decimation={show(settings.decimation)}: choose from {', '.join(DECIMATIONS)}")
+    problems.append(tour_problem(settings.curve_tour, "curve_tour"))
     raise_problems(problems)
+
+
+def tour_problem(tour, name: str) -> str | None:
+    """The problem with a SpiderCurve tour setting named ``name``, or None."""
+    if tour in TOUR_SETTINGS:
+        return None
+    return f"{name}={show(tour)}: choose from {', '.join(TOUR_SETTINGS)}"
 
 
 def check_ground_truth(source_corr, target_corr, source_name: str, target_name: str) -> None:

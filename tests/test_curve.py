@@ -1,4 +1,5 @@
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -102,3 +103,97 @@ def test_two_opt_curve_is_shorter_with_fewer_self_intersections():
     check_curve(shortened, mesh.edges)
     with pytest.raises(ValueError, match="unknown curve tour"):
         spider_curve(mesh, tour="or_opt")
+
+
+def _tour_pair():
+    """A creature and another pose of it, coordinates as features: a pair that certifies in seconds."""
+    source, target = make_creature(900, 3).mesh, make_creature(900, 4).mesh
+    return source, target, source.centred().verts, target.centred().verts
+
+
+def _recording_solver(monkeypatch, first_status: str, second_status: str = "optimal") -> list:
+    """Replace the pipeline's solve: the real one, then each tour's result given the status asked for.
+
+    Returns the list to which each call appends (curve length, time limit, status returned).
+    """
+    import dataclasses
+
+    from spidermatch import pipeline
+
+    real, calls = pipeline.solve_with_strategy, []
+
+    def solve(strategy, model, graph, curve, options):
+        solved = real(strategy, model, graph, curve, options)
+        status = (first_status, second_status)[len(calls)]
+        if status == "feasible":  # the same matching, not proven: half its objective as the bound
+            solved = dataclasses.replace(solved, status=status, bound=solved.objective / 2, gap=0.5)
+        elif status == "no_solution":
+            solved = dataclasses.replace(solved, status=status, x=None, objective=math.inf, gap=math.nan)
+        calls.append((curve.length, options.time_limit, solved.status))
+        return solved
+
+    monkeypatch.setattr(pipeline, "solve_with_strategy", solve)
+    return calls
+
+
+def _auto_settings(time_limit: float = 100.0):
+    from spidermatch.pipeline import MatchSettings
+    from spidermatch.solve.types import SolverOptions
+
+    solver = SolverOptions(time_limit=time_limit)
+    return MatchSettings(
+        resolution=120, strategy="colgen", curve_tour="auto", isolate_solver=False, dense=None, solver=solver
+    )
+
+
+def test_auto_tour_keeps_the_papers_curve_when_it_certifies_within_its_share(monkeypatch):
+    from spidermatch.pipeline import AUTO_TOUR_SHARE, match
+
+    calls = _recording_solver(monkeypatch, "optimal")
+    result = match(*_tour_pair(), _auto_settings(100.0))
+    assert [limit for _, limit, _ in calls] == [pytest.approx(AUTO_TOUR_SHARE * 100.0)]
+    assert result.solve.status == "optimal" and result.check.ok
+    assert [(t["tour"], t["status"], t["chosen"]) for t in result.tours] == [("christofides", "optimal", True)]
+    paper = spider_curve(result.source.mesh)  # the curve matched is the paper's
+    assert np.array_equal(result.curve.vertices, paper.vertices)
+
+
+def test_auto_tour_tries_the_shortened_curve_in_the_time_left_and_keeps_the_certified_one(monkeypatch):
+    from spidermatch.pipeline import match
+
+    calls = _recording_solver(monkeypatch, "feasible", "optimal")
+    result = match(*_tour_pair(), _auto_settings(100.0))
+    (first_length, first_limit, _), (second_length, second_limit, _) = calls
+    first_time = result.tours[0]["solve_s"]
+    assert second_limit == pytest.approx(100.0 - first_time, abs=0.01)  # the whole budget, no more
+    assert second_length < first_length  # the 2-opt curve is the shorter
+    assert [(t["tour"], t["status"], t["chosen"]) for t in result.tours] == [
+        ("christofides", "feasible", False),
+        ("two_opt", "optimal", True),
+    ]
+    assert result.solve.status == "optimal" and result.curve.length == second_length and result.check.ok
+    shortened = spider_curve(result.source.mesh, tour="two_opt")
+    assert np.array_equal(result.curve.vertices, shortened.vertices)
+    assert result.timings["solve"] >= sum(t["solve_s"] for t in result.tours) - 0.01  # both solves counted
+
+
+def test_auto_tour_keeps_the_first_matching_when_the_second_tour_finds_none(monkeypatch):
+    from spidermatch.pipeline import match
+
+    calls = _recording_solver(monkeypatch, "feasible", "no_solution")
+    result = match(*_tour_pair(), _auto_settings(100.0))
+    assert [status for *_, status in calls] == ["feasible", "no_solution"]
+    assert result.tours[0]["chosen"] and not result.tours[1]["chosen"]
+    assert result.solve.status == "feasible" and result.low_map is not None
+    assert result.curve.length == calls[0][0]
+
+
+def test_an_unknown_tour_is_refused_by_name_in_the_api():
+    import dataclasses
+
+    from spidermatch.pipeline import match
+    from spidermatch.validate import OptionError
+
+    settings = dataclasses.replace(_auto_settings(), curve_tour="three_opt")
+    with pytest.raises(OptionError, match="curve_tour='three_opt': choose from christofides, two_opt, auto"):
+        match(*_tour_pair(), settings)

@@ -148,7 +148,7 @@ def test_02_every_strategy_and_curve_matching_is_accepted_and_unknown_ones_named
             check_options(config("match", [f"solver.strategy={strategy}", f"curve.matching={matching}"]))
     with pytest.raises(OptionError, match="curve.matching='zigzag'"):
         check_options(config("match", ["curve.matching=zigzag"]))
-    for tour in ("christofides", "two_opt"):
+    for tour in ("christofides", "two_opt", "auto"):
         check_options(config("match", [f"curve.tour={tour}"]))
     with pytest.raises(OptionError, match="curve.tour='three_opt'"):
         check_options(config("match", ["curve.tour=three_opt"]))

@@ -51,6 +51,7 @@ def result_summary(result: MatchResult, inputs: MatchInputs, feature_name: str) 
             "quality": result.quality,
             "curve_length": result.curve.length,
             "curve_self_intersections": int(result.curve.intersections.size),
+            "curve_tours": result.tours or None,  # curve.tour=auto: each tour tried, the kept one marked
             "check": {"ok": bool(result.check.ok), "problems": list(result.check.problems)}
             if result.check
             else None,

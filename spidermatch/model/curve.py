@@ -104,6 +104,9 @@ def check_curve(curve: SpiderCurve, edges: np.ndarray) -> None:
 
 MATCHINGS = ("greedy", "blossom")
 TOURS = ("christofides", "two_opt")
+AUTO_TOUR = "auto"
+"""The setting that tries :data:`TOURS` in turn (resolved by :func:`spidermatch.pipeline.match`)."""
+TOUR_SETTINGS = (*TOURS, AUTO_TOUR)
 
 
 def spider_curve(
