@@ -300,6 +300,7 @@ def match(
     features_max_vertices: int | None = MAX_FEATURE_VERTICES,
     partial: str = "auto",
     repair: bool = False,
+    second_opinion=None,
 ) -> Matching:
     """Match ``source`` to ``target`` with SpiderMatch and return a certified :class:`Matching`.
 
@@ -351,6 +352,13 @@ def match(
         ``source_overlap``, a target's are nobody's image; ``dense`` and ``details`` are in
         the pieces' indices. Precomputed features are given for the meshes as given. A mesh
         given as a ``Mesh`` is checked and repaired as a file is.
+    second_opinion : extractor or (source (V_src, D), target (V_tgt, D)) arrays, optional
+        Features of a second opinion, asked only when the map's quality verdict is
+        "suspect": the pair is matched again with ``features`` and these joined
+        (:func:`spidermatch.pipeline.joined_features`), and the second map is kept if its
+        verdict is "plausible" (``details.second_opinion`` says which was kept). Measured
+        with a second training of the network (``LearnedExtractor(other_checkpoint)``) on
+        partial-to-full pairs: docs/partial.md. Not with ``partial="both"``.
 
     Returns
     -------
@@ -363,6 +371,7 @@ def match(
         Bad meshes or features, with a message naming the mesh and the problem.
 
     """
+    from spidermatch.pipeline import joined_features, kept_opinion, needs_second_opinion
     from spidermatch.pipeline import match as run_pipeline
 
     raise_problems([feature_cap_problem(features_max_vertices, "features_max_vertices")])
@@ -399,6 +408,23 @@ def match(
     matched_source = source_mesh if piece is None else piece.mesh
     result = run_pipeline(matched_source, target_mesh, feat_x, feat_y, run_settings)
     result.pair = kind
+    if second_opinion is not None and needs_second_opinion(result):
+        if overlap:
+            logger.info("no second opinion with partial='both': the suspect map stands")
+        else:
+            started = time.perf_counter()
+            second_features = _second_opinion_features(
+                second_opinion,
+                (source_mesh, target_mesh),
+                ((source_weld, repaired), (target_weld, target_repaired)),
+                features_max_vertices or None,
+                kind.mode == "partial",
+            )
+            joined = (joined_features(a, b) for a, b in zip((feat_x, feat_y), second_features))
+            second = run_pipeline(matched_source, target_mesh, *joined, run_settings)
+            second.pair = kind
+            result = kept_opinion(result, second)
+            result.timings["second_opinion"] = time.perf_counter() - started
     if strict:
         result.raise_for_status()
     matching = _matching(result, name, run_settings.resolution, {"features": feature_time, **result.timings})
@@ -409,6 +435,19 @@ def match(
     if target_repaired is not None:
         matching = on_whole_target(matching, target_repaired.piece)
     return on_file_vertices(matching, source_weld, target_weld)
+
+
+def _second_opinion_features(second_opinion, meshes: tuple, changes: tuple, cap, partial: bool) -> tuple:
+    """The second opinion's features of the matched source and target, (V_src, D) and (V_tgt, D).
+
+    ``changes``: each mesh's (weld, repair) from :func:`mesh_of`. Arrays are given for the
+    meshes as given and cut as the first features were; an extractor is run on the matched
+    meshes as the first one was.
+    """
+    if isinstance(second_opinion, (tuple, list)) and len(second_opinion) == 2:
+        return tuple(_matched_rows(rows, *change) for rows, change in zip(second_opinion, changes))
+    second_x, second_y, _ = pair_features(second_opinion, *meshes, cap, partial=partial)
+    return second_x, second_y
 
 
 def on_file_vertices(matching: Matching, source_weld: Weld | None, target_weld: Weld | None) -> Matching:

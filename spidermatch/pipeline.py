@@ -188,6 +188,9 @@ class MatchResult:
         With ``curve_tour="auto"``: each SpiderCurve tour tried, its status, objective, bound,
         gap and solve time, and which was kept (``curve`` and ``solve`` are that tour's).
         Empty otherwise.
+    second_opinion : dict or None
+        When the map was judged suspect and matched again with a second opinion's features
+        (:func:`kept_opinion`): which map was kept and each one's status, gap and verdict.
 
     """
 
@@ -206,6 +209,7 @@ class MatchResult:
     pair: PairKind | None = None
     closed: tuple = (None, None)
     tours: list = field(default_factory=list)
+    second_opinion: dict | None = None
 
     @property
     def dense_map(self) -> np.ndarray | None:
@@ -561,6 +565,83 @@ def _tour_rank(solved: SolveResult) -> tuple:
     """Sort key of a tour's result: certified first, then with a matching, then by gap."""
     gap = solved.gap if math.isfinite(solved.gap) else math.inf
     return (solved.status != "optimal", solved.x is None, gap)
+
+
+def needs_second_opinion(result: MatchResult) -> bool:
+    """True when ``result`` has a matching its quality verdict calls suspect.
+
+    Called after :func:`add_dense_map` when there is a dense map: the verdict is then the one
+    confirmed by the dense map (:func:`spidermatch.eval.quality.with_dense_figures`).
+    """
+    verdict = None if result.quality is None else result.quality["verdict"]
+    return result.low_map is not None and verdict == "suspect"
+
+
+def joined_features(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Two descriptors of the same vertices side by side: each row the two unit rows over sqrt(2).
+
+    The similarity of two joined rows is the mean of the two descriptors' similarities (as
+    :class:`features.learned.EnsembleExtractor` joins networks), and the rows stay unit-norm.
+
+    Parameters
+    ----------
+    first : np.ndarray, shape (V, D1)
+    second : np.ndarray, shape (V, D2)
+
+    Returns
+    -------
+    np.ndarray, shape (V, D1 + D2)
+    """
+    if len(first) != len(second):
+        raise ValueError(f"the second opinion's features have {len(second)} rows for {len(first)} vertices")
+    return np.hstack([unit_rows(first), unit_rows(second)]) / np.sqrt(2.0)
+
+
+def kept_opinion(first: MatchResult, second: MatchResult) -> MatchResult:
+    """The map to keep after a second opinion: ``second`` if it is judged plausible, else ``first``.
+
+    A second map judged suspect too, or without a checked matching, leaves the first map,
+    which gets ``second_opinion`` all the same (what was tried, for ``result.json``).
+
+    Parameters
+    ----------
+    first : MatchResult
+        The map judged suspect.
+    second : MatchResult
+        The same pair matched with the second opinion's features.
+
+    Returns
+    -------
+    MatchResult
+        The kept one, its ``second_opinion`` filled in.
+    """
+    checked = second.low_map is not None and (second.check is None or second.check.ok)
+    plausible = checked and second.quality is not None and second.quality["verdict"] == "plausible"
+    kept = second if plausible else first
+    kept.second_opinion = {
+        "kept": "second" if plausible else "first",
+        "first": _opinion(first),
+        "second": _opinion(second),
+    }
+    logger.info(
+        "second opinion: %s (its verdict: %s); the %s map is kept",
+        second.solve.status,
+        "none" if second.quality is None else second.quality["verdict"],
+        kept.second_opinion["kept"],
+    )
+    return kept
+
+
+def _opinion(result: MatchResult) -> dict:
+    """Status, objective, gap and verdict of one map of a second opinion, JSON-ready."""
+    quality = result.quality or {}
+    return {
+        "status": result.solve.status,
+        "objective": finite_or_none(result.solve.objective),
+        "gap": finite_or_none(result.solve.gap),
+        "verdict": quality.get("verdict"),
+        "reasons": list(quality.get("reasons", [])),
+    }
 
 
 def _log_quality(quality: dict) -> None:

@@ -39,7 +39,8 @@ MATCH_PARAMETERS = [
     "strict",
     "features_max_vertices",
     "partial",
-    "repair",  # keyword-only, added last
+    "repair",  # keyword-only
+    "second_opinion",  # keyword-only, added last
 ]
 
 MATCHING_FIELDS = [
