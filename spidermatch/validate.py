@@ -10,6 +10,7 @@ mesh not far below the requested resolution.
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 from spidermatch.dense.settings import settings_problems as dense_settings_problems
 from spidermatch.geometry.mesh import Mesh, MeshError
@@ -126,7 +127,7 @@ def costs_and_curve_problems(cfg) -> list[str]:
     return problems
 
 
-PATH_OPTIONS = ("source", "target", "source_corr", "target_corr", "checkpoint")
+PATH_OPTIONS = ("source", "target", "source_corr", "target_corr", "checkpoint", "second_opinion")
 OUTPUT_SWITCHES = ("matches_csv", "result_json", "png", "viewer")
 
 
@@ -178,7 +179,21 @@ def check_options(cfg) -> None:
     problems.append(constraints_problem(cfg.costs.get("constraints"), FAMILIES))
     problems += costs_and_curve_problems(cfg)
     problems += path_problems(cfg) + dense_and_output_problems(cfg)
+    problems.append(second_opinion_problem(cfg))
     raise_problems(problems)
+
+
+def second_opinion_problem(cfg) -> str | None:
+    """``second_opinion`` (a second network's checkpoint) needs learned features and an existing file."""
+    second = cfg.get("second_opinion")
+    if second is None or not isinstance(second, str):
+        return None  # none asked, or not a path (path_problems says so)
+    features = cfg.get("features")
+    if features is None or "checkpoint" not in features:
+        return f"second_opinion={second}: needs features=learned (the second network is joined to the first)"
+    if not Path(second).is_file():
+        return f"second_opinion={second}: no such file"
+    return None
 
 
 def strategy_names() -> list[str]:

@@ -272,6 +272,27 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
     return feat_x, feat_y, name, feature_details(extractor, capped)
 
 
+def second_opinion_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray]:
+    """The second network's (``cfg.second_opinion``) features of both meshes, made as the first's are.
+
+    The same extractor options as ``cfg.features`` (adaptation, orientation search), the same
+    feature cap and the same partial presentation; (V_X, D) and (V_Y, D).
+    """
+    from omegaconf import OmegaConf
+
+    second_cfg = OmegaConf.merge(cfg, {"features": {"checkpoint": str(cfg.second_opinion)}})
+    feat_x, feat_y = pair_features(
+        make_extractor(second_cfg),
+        inputs.source,
+        inputs.target,
+        feature_cap(cfg),
+        {},
+        partial=inputs.partial,
+        overlap=inputs.overlap,
+    )
+    return feat_x, feat_y
+
+
 def overlap_inputs(inputs: MatchInputs, feat_x: np.ndarray, feat_y: np.ndarray, report: dict):
     """``partial=both``: the inputs cut to the source's estimated overlap with the target, and its features.
 

@@ -21,6 +21,7 @@ from spidermatch.cli.inputs import (
     load_inputs,
     overlap_inputs,
     resolution_text,
+    second_opinion_features,
 )
 from spidermatch.cli.outputs import (
     final_line,
@@ -32,8 +33,9 @@ from spidermatch.cli.outputs import (
     write_matching,
     write_pngs,
 )
+from spidermatch.cli.second_opinion import Opinion, second_opinion_stage
 from spidermatch.cli.settings import settings_from_config
-from spidermatch.pipeline import MatchError, add_dense_map, match
+from spidermatch.pipeline import MatchError, add_dense_map, match, needs_second_opinion
 from spidermatch.validate import (
     check_options,
 )
@@ -43,10 +45,17 @@ logger = logging.getLogger("spidermatch.match")
 
 def run_match(cfg, output_dir: Path) -> int:
     """Run one match and write its outputs into ``output_dir``; return the exit code."""
-    return run_pair(cfg, output_dir, lambda: load_inputs(cfg), lambda inputs: compute_features(cfg, inputs))
+    second = None
+    if cfg.get("second_opinion"):
+        second = lambda inputs: second_opinion_features(cfg, inputs)  # noqa: E731
+    return run_pair(
+        cfg, output_dir, lambda: load_inputs(cfg), lambda inputs: compute_features(cfg, inputs), None, second
+    )
 
 
-def run_pair(cfg, output_dir: Path, get_inputs, get_features, record: dict | None = None) -> int:
+def run_pair(
+    cfg, output_dir: Path, get_inputs, get_features, record: dict | None = None, get_second_features=None
+) -> int:
     """Load a pair, match it and write its outputs; ``result.json`` is written whatever happens.
 
     Options are validated first (:func:`spidermatch.validate.check_options`). A signal,
@@ -62,6 +71,9 @@ def run_pair(cfg, output_dir: Path, get_inputs, get_features, record: dict | Non
     get_features : callable (MatchInputs) -> (features_x (V_X, D), features_y (V_Y, D), name, details)
     record : dict, optional
         Extra entries for ``result.json`` (e.g. the eval's settings hash).
+    get_second_features : callable (MatchInputs) -> (features_x (V_X, D), features_y (V_Y, D)), optional
+        The second opinion's features (:mod:`spidermatch.cli.second_opinion`), asked only for
+        a map judged suspect.
 
     Returns
     -------
@@ -75,7 +87,7 @@ def run_pair(cfg, output_dir: Path, get_inputs, get_features, record: dict | Non
         try:
             start_run(output_dir, result_path, report)
             check_options(cfg)
-            code = run_stages(cfg, output_dir, report, get_inputs, get_features)
+            code = run_stages(cfg, output_dir, report, (get_inputs, get_features, get_second_features))
         except (shutdown.RunInterrupted, OSError, *INPUT_ERRORS) as error:
             status, code, message, known = shutdown.final_status(error, INPUT_ERRORS)
             (logger.warning if status == "interrupted" else logger.error)("%s", message)
@@ -92,8 +104,12 @@ def run_pair(cfg, output_dir: Path, get_inputs, get_features, record: dict | Non
     return code
 
 
-def run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) -> int:
-    """Inputs, features, the match, the dense map and the files, each stage recorded in ``report``."""
+def run_stages(cfg, output_dir: Path, report: dict, getters: tuple) -> int:
+    """Inputs, features, the match, the dense map and the files, each stage recorded in ``report``.
+
+    ``getters``: ``get_inputs``, ``get_features`` and ``get_second_features`` (or None) of :func:`run_pair`.
+    """
+    get_inputs, get_features, get_second_features = getters
     inputs = get_inputs()
     report.update(input=inputs.description, resolution=inputs.resolution)
     inputs = check_inputs(cfg, inputs, report)
@@ -145,6 +161,11 @@ def run_stages(cfg, output_dir: Path, report: dict, get_inputs, get_features) ->
             stage = "dense outputs"
             dense_errors = write_dense(output_dir, result, inputs, (feat_x, feat_y), report)
             picture_errors = None if dense_errors is None else (inputs.source_corr, dense_errors)
+        if get_second_features is not None and needs_second_opinion(result) and not inputs.overlap:
+            stage = "second opinion"
+            first = Opinion(result, (feat_x, feat_y), picture_errors)
+            kept = second_opinion_stage(cfg, output_dir, inputs, settings, first, get_second_features, report)
+            result, picture_errors, status = kept.result, kept.picture_errors, kept.result.solve.status
         if cfg.output.png:
             stage = "pictures"
             viewer = bool(cfg.output.get("viewer", True))

@@ -1,0 +1,107 @@
+"""The command line's second opinion: a map judged suspect is matched again with a second network.
+
+``second_opinion=PATH`` (with ``features=learned``) names a second training of the network. Only a
+run whose map the quality verdict calls suspect (judged with the dense map when there is one)
+asks it: the pair is matched again with both networks' features joined
+(:func:`spidermatch.pipeline.joined_features`), and the second map replaces the first, in every
+file, if its verdict is plausible. The first map's files are written before; a second opinion
+that fails leaves them as they are. Measured on partial-to-full pairs in docs/partial.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from pathlib import Path
+
+from spidermatch.cli.inputs import MatchInputs
+from spidermatch.cli.outputs import result_summary, write_dense, write_interim_result, write_matching
+from spidermatch.pipeline import (
+    MatchResult,
+    MatchSettings,
+    add_dense_map,
+    joined_features,
+    kept_opinion,
+    match,
+)
+
+logger = logging.getLogger("spidermatch.match")
+
+
+@dataclasses.dataclass
+class Opinion:
+    """The map a run ends with: its result, the features it was matched with, its ground-truth errors."""
+
+    result: MatchResult
+    features: tuple
+    picture_errors: tuple | None
+
+
+def second_opinion_stage(
+    cfg,
+    output_dir: Path,
+    inputs: MatchInputs,
+    settings: MatchSettings,
+    first: Opinion,
+    get_second_features,
+    report: dict,
+) -> Opinion:
+    """Ask the second opinion about ``first`` (judged suspect); the opinion the run ends with.
+
+    Parameters
+    ----------
+    cfg : DictConfig
+    output_dir : Path
+    inputs : MatchInputs
+    settings : MatchSettings
+        The run's settings (with its dense settings).
+    first : Opinion
+        The suspect map, its files already written.
+    get_second_features : callable (MatchInputs) -> (features_x (V_X, D), features_y (V_Y, D))
+        The second network's features of the run's meshes.
+    report : dict
+        ``result.json`` so far: gets ``second_opinion`` and, when the second map is kept, its
+        figures in place of the first's.
+
+    Returns
+    -------
+    Opinion
+        ``first``, or the second map when it is judged plausible (its files written).
+    """
+    logger.info("the map is judged suspect: asking the second opinion (%s)", cfg.second_opinion)
+    started = time.perf_counter()
+    try:
+        second, features = _matched_again(inputs, settings, first.features, get_second_features)
+    except Exception as error:  # the second opinion must not cost the first map
+        logger.warning("the second opinion failed (%s): the first map stands", error)
+        logger.debug("second opinion", exc_info=True)
+        report["second_opinion"] = {"kept": "first", "error": str(error)}
+        return first
+    kept = kept_opinion(first.result, second)
+    seconds = round(time.perf_counter() - started, 3)
+    if kept is first.result:
+        report["second_opinion"] = {**kept.second_opinion, "time_s": seconds}
+        return first
+    timings = report["timings_s"]
+    report.update(result_summary(second, inputs, report["features"]))
+    report.update(status="writing", solver_status=second.solve.status, quality=second.quality)
+    report["timings_s"] = {**timings, "second_opinion": seconds}
+    report["second_opinion"] = {**second.second_opinion, "time_s": seconds}
+    picture_errors = write_matching(cfg, output_dir, second, inputs, report)
+    write_interim_result(cfg, output_dir, report)
+    if second.dense is not None:
+        dense_errors = write_dense(output_dir, second, inputs, features, report)
+        picture_errors = None if dense_errors is None else (inputs.source_corr, dense_errors)
+    return Opinion(second, features, picture_errors)
+
+
+def _matched_again(inputs: MatchInputs, settings: MatchSettings, features: tuple, get_second_features):
+    """The pair matched with ``features`` and the second network's joined; (MatchResult, joined features)."""
+    second_x, second_y = get_second_features(inputs)
+    joined = tuple(joined_features(a, b) for a, b in zip(features, (second_x, second_y)))
+    undensed = dataclasses.replace(settings, dense=None)
+    second = match(inputs.source, inputs.target, *joined, undensed, announce_quality=False)
+    if settings.dense is not None and second.low_map is not None and second.check.ok:
+        add_dense_map(second, inputs.source, inputs.target, joined, settings.dense, settings.partial)
+    return second, joined

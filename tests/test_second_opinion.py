@@ -1,0 +1,129 @@
+"""The second opinion: a map judged suspect is matched again with a second descriptor joined to the first."""
+
+import json
+import types
+
+import numpy as np
+import pytest
+from conftest import composed
+
+import spidermatch
+from spidermatch import pipeline
+from spidermatch.cli.match import run_match
+from spidermatch.data.datasets import SyntheticShapes
+from spidermatch.pipeline import joined_features, kept_opinion, needs_second_opinion
+
+SMALL = ["data.n_verts=700", "resolution=60", "solver.time_limit=3600", "output.png=false"]
+
+
+def opinion(verdict, status="optimal", matched=True, checked=True):
+    """A stand-in for a MatchResult with what the choice reads."""
+    return types.SimpleNamespace(
+        low_map=np.arange(3) if matched else None,
+        check=types.SimpleNamespace(ok=checked),
+        quality=None if verdict is None else {"verdict": verdict, "reasons": []},
+        solve=types.SimpleNamespace(status=status, objective=1.0, gap=1e-4),
+        second_opinion=None,
+    )
+
+
+def test_joined_rows_are_unit_and_their_similarity_is_the_mean_of_the_two(rng):
+    first, second = rng.normal(size=(5, 3)) * 7, rng.normal(size=(5, 4)) * 1e-3
+    joined = joined_features(first, second)
+    assert joined.shape == (5, 7) and np.allclose(np.linalg.norm(joined, axis=1), 1)
+    unit = lambda rows: rows / np.linalg.norm(rows, axis=1, keepdims=True)  # noqa: E731
+    mean = (unit(first) @ unit(first).T + unit(second) @ unit(second).T) / 2
+    assert np.allclose(joined @ joined.T, mean)
+    with pytest.raises(ValueError, match="4 rows for 5 vertices"):
+        joined_features(first, second[:4])
+
+
+@pytest.mark.parametrize(
+    "second, kept",
+    [
+        (opinion("plausible"), "second"),
+        (opinion("plausible", status="feasible"), "second"),  # plausible, not proven: still the better bet
+        (opinion("suspect"), "first"),
+        (opinion(None, status="no_solution", matched=False), "first"),
+        (opinion("plausible", checked=False), "first"),  # a map that fails the checker is never kept
+    ],
+)
+def test_the_second_map_is_kept_only_when_judged_plausible(second, kept):
+    first = opinion("suspect")
+    chosen = kept_opinion(first, second)
+    assert chosen is (second if kept == "second" else first)
+    assert chosen.second_opinion["kept"] == kept
+    assert chosen.second_opinion["first"]["verdict"] == "suspect"
+    assert needs_second_opinion(first) and not needs_second_opinion(opinion("plausible"))
+    assert not needs_second_opinion(opinion("suspect", matched=False))
+
+
+def _judged_suspect_once(monkeypatch, module):
+    """``module.needs_second_opinion`` says yes to the first map only (a plausible map asked anyway)."""
+    calls = []
+
+    def once(result):
+        calls.append(result)
+        return len(calls) == 1
+
+    monkeypatch.setattr(module, "needs_second_opinion", once)
+    return calls
+
+
+def test_api_asks_the_second_opinion_of_a_suspect_map_and_keeps_a_plausible_one(monkeypatch):
+    shapes = SyntheticShapes(n_shapes=2, n_verts=700, seed=0)
+    x, y = (shapes.load(name) for name in shapes.names)
+    features = x.mesh.centred().verts, y.mesh.centred().verts
+    _judged_suspect_once(monkeypatch, pipeline)
+    result = spidermatch.match(x.mesh, y.mesh, features=features, resolution=60, second_opinion=features)
+    record = result.details.second_opinion
+    assert record["first"]["verdict"] == "plausible"  # the same costs again: the same verdict
+    assert record["kept"] == "second" and record["second"]["verdict"] == "plausible"
+    assert result.status == "optimal" and result.dense_map is not None
+    assert "second_opinion" in result.timings
+    unasked = spidermatch.match(x.mesh, y.mesh, features=features, resolution=60, second_opinion=features)
+    assert unasked.details.second_opinion is None  # a plausible map is not asked about
+
+
+def test_cli_second_opinion_rewrites_the_outputs_with_the_kept_map(tmp_path, tiny_checkpoint, monkeypatch):
+    import spidermatch.cli.match as cli_match
+
+    _judged_suspect_once(monkeypatch, cli_match)
+    learned = ["features=learned", f"checkpoint={tiny_checkpoint}", f"second_opinion={tiny_checkpoint}"]
+    assert run_match(composed("match", SMALL + learned), tmp_path) == 0
+    result = json.loads((tmp_path / "result.json").read_text())
+    record = result["second_opinion"]
+    assert record["kept"] in ("first", "second") and record["time_s"] > 0
+    assert record["second"]["verdict"] in ("plausible", "suspect")
+    assert (record["kept"] == "second") == (record["second"]["verdict"] == "plausible")
+    assert result["status"] == "optimal" and result["check"]["ok"]
+    assert result["quality"]["verdict"] == record[record["kept"]]["verdict"]
+    dense = np.load(tmp_path / "dense_map.npz")
+    assert len(dense[list(dense.keys())[0]]) > 0
+
+
+def test_cli_second_opinion_that_fails_leaves_the_first_map(tmp_path, tiny_checkpoint, monkeypatch):
+    import spidermatch.cli.match as cli_match
+
+    def broken(cfg, inputs):
+        raise RuntimeError("the second network is broken")
+
+    _judged_suspect_once(monkeypatch, cli_match)
+    monkeypatch.setattr(cli_match, "second_opinion_features", broken)
+    learned = ["features=learned", f"checkpoint={tiny_checkpoint}", f"second_opinion={tiny_checkpoint}"]
+    assert run_match(composed("match", SMALL + learned), tmp_path) == 0
+    result = json.loads((tmp_path / "result.json").read_text())
+    assert result["second_opinion"] == {"kept": "first", "error": "the second network is broken"}
+    assert result["status"] == "optimal" and (tmp_path / "matches.csv").exists()
+
+
+@pytest.mark.parametrize(
+    "overrides, problem",
+    [
+        (["features=wks", "second_opinion=net.pt"], "second_opinion=net.pt: needs features=learned"),
+        (["features=learned", "checkpoint=net.pt", "second_opinion=missing.pt"], "second_opinion=missing.pt: no such file"),
+    ],
+)  # fmt: skip
+def test_a_second_opinion_that_cannot_be_asked_is_refused_before_any_work(tmp_path, overrides, problem):
+    assert run_match(composed("match", SMALL + overrides), tmp_path) == 2
+    assert problem in json.loads((tmp_path / "result.json").read_text())["error"]
