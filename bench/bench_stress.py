@@ -129,6 +129,7 @@ def stress_command(args: argparse.Namespace, collections: Collections, run: dict
         f"solver.time_limit={args.time_limit}",
         "output.png=false",
         "output.viewer=false",
+        *args.override,
     ]
     if collections.has_ground_truth(source, target):
         command += [
@@ -229,6 +230,12 @@ def main(argv: list[str] | None = None) -> None:
         "--runs", default=None, help="FIRST:STOP: only these of the drawn runs (e.g. one share per core)"
     )
     parser.add_argument(
+        "--indices", nargs="+", type=int, default=None, help="only these of the drawn runs (after --runs)"
+    )
+    parser.add_argument(
+        "--override", nargs="+", default=[], help="further spidermatch-match options, e.g. curve.tour=auto"
+    )
+    parser.add_argument(
         "--combine", nargs="+", type=Path, default=None, help="write --out from these outputs' rows instead"
     )
     parser.add_argument("--out", default="bench/results/stress_faust_tosca_500_1000.json")
@@ -249,6 +256,8 @@ def main(argv: list[str] | None = None) -> None:
     if args.runs:
         first, stop = (int(part) for part in args.runs.split(":"))
         runs = runs[first:stop]
+    if args.indices:
+        runs = [run for run in runs if run["n"] in set(args.indices)]
     out, rows = Path(args.out), []
     out.parent.mkdir(parents=True, exist_ok=True)
     print(" | ".join(COLUMNS), flush=True)
