@@ -54,7 +54,7 @@ from spidermatch.geometry.remesh import nearest_vertices
 
 COLUMNS = (
     "part", "target", "kept_area", "mode", "status", "gap", "solve_s", "total_s", "dense_error", "iou",
-    "verdict", "distortion", "dense_distortion", "mirror", "dense_mirror",
+    "verdict", "distortion", "dense_distortion", "mirror", "dense_mirror", "second_opinion",
 )  # fmt: skip
 BAD_ERROR = 0.1  # a dense error above this is a wrong map (a misplaced or mirrored part)
 OVERLAP_COLUMNS = (*COLUMNS, "source_iou", "overlap_mapped")
@@ -233,6 +233,7 @@ def _timed_match(source: Mesh, target: Mesh, args, extractor, partial: str, row:
         time_limit=args.time_limit,
         strict=False,
         partial=partial,
+        second_opinion=getattr(args, "second_network", None),
     )
     row["total_s"] = round(time.perf_counter() - started, 1)
     row.update(
@@ -241,6 +242,8 @@ def _timed_match(source: Mesh, target: Mesh, args, extractor, partial: str, row:
         gap=result.gap,
         solve_s=round(result.timings.get("solve", float("nan")), 1),
     )
+    if result.details.second_opinion:  # asked: which map was kept
+        row["second_opinion"] = result.details.second_opinion.get("kept")
     if result.quality:  # the verdict without ground truth, to set beside the error
         figures = ("verdict", "distortion", "dense_distortion", "mirror", "dense_mirror")
         row.update({name: result.quality.get(name) for name in figures})
@@ -497,6 +500,13 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="--target-holes: keep the first draw of centres, even where a hole spans over 1 %% of the area",
     )
+    parser.add_argument(
+        "--second-opinion",
+        default=None,
+        metavar="CHECKPOINT",
+        help="a second network: a map judged suspect is matched again with both (spidermatch.match's "
+        "second_opinion)",
+    )
     parser.add_argument("--faces", type=int, default=1000)
     parser.add_argument("--time-limit", type=float, default=120.0)
     parser.add_argument("--runs", default=None, help="FIRST:STOP, a slice of the runs")
@@ -523,6 +533,7 @@ def main(argv: list[str] | None = None) -> int:
         first, stop = (int(text) for text in args.runs.split(":"))
         runs = runs[first:stop]
     extractor = "wks" if args.checkpoint == "wks" else network_extractor(args.checkpoint)
+    args.second_network = network_extractor(args.second_opinion) if args.second_opinion else None
     columns = OVERLAP_COLUMNS if args.mode == "both" else COLUMNS
     run = run_overlap_pair if args.mode == "both" else run_pair
     run_and_write(
