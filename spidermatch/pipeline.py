@@ -452,10 +452,9 @@ def match(
         attempt, tours = _solved_with_tours_in_turn(source, target, features, settings, timings, closed)
     else:
         attempt, tours = _prepared_and_solved(source, target, features, settings, timings, closed), []
-    low_x, low_y, curve, graph, model, solved = attempt
+    low_x, low_y, curve, graph, model_size, solved = attempt
     result = MatchResult(low_x, low_y, curve, graph, solved, timings=timings, closed=closed, tours=tours)
-    nonzeros = getattr(model, "nnz", None)  # a LazyModel (colgen) never builds the full matrix
-    result.model_size = {"variables": model.n_vars, "rows": model.n_rows, "nonzeros": nonzeros}
+    result.model_size = model_size
     if solved.x is not None:
         with _stage(timings, "check"):
             _read_solution(result, tuple(settings.constraints))
@@ -481,7 +480,11 @@ MIN_SECOND_TOUR_S = 10.0
 def _prepared_and_solved(
     source: Mesh, target: Mesh, features: tuple, settings: MatchSettings, timings: dict, closed: tuple
 ) -> tuple:
-    """:func:`prepare` and solve with ``settings.curve_tour``; (low_x, low_y, curve, graph, model, solved)."""
+    """:func:`prepare` and solve with ``settings.curve_tour``.
+
+    Returns (low_x, low_y, curve, graph, model_size, solved); ``model_size`` (the ILP's
+    ``variables``, ``rows`` and ``nonzeros``) stands for the model, which is let go after the solve.
+    """
     low_x, low_y, curve, graph, model = prepare(source, target, *features, settings, timings, closed)
     with _stage(timings, "solve"):
         solve = partial(solve_with_strategy, settings.strategy)
@@ -498,7 +501,9 @@ def _prepared_and_solved(
         solved.bound,
         solved.gap,
     )
-    return low_x, low_y, curve, graph, model, solved
+    nonzeros = getattr(model, "nnz", None)  # a LazyModel (colgen) never builds the full matrix
+    model_size = {"variables": model.n_vars, "rows": model.n_rows, "nonzeros": nonzeros}
+    return low_x, low_y, curve, graph, model_size, solved
 
 
 def _solved_with_tours_in_turn(
@@ -514,7 +519,7 @@ def _solved_with_tours_in_turn(
     Returns
     -------
     attempt : tuple
-        (low_x, low_y, curve, graph, model, solved) of the chosen tour.
+        (low_x, low_y, curve, graph, model_size, solved) of the chosen tour.
     tours : list of dict
         Per tour tried: ``tour``, ``status``, ``objective``, ``bound``, ``gap``, ``solve_s``, ``chosen``.
     """
@@ -522,12 +527,20 @@ def _solved_with_tours_in_turn(
     first_limit = AUTO_TOUR_SHARE * limit if math.isfinite(limit) else limit
     attempts = [_tour_attempt(source, target, features, settings, timings, closed, TOURS[0], first_limit)]
     first = attempts[0][-1]
+    ranks, held = [_tour_rank(first)], None
     left = limit - first.wall_time
     if first.status not in ("optimal", "infeasible") and left >= MIN_SECOND_TOUR_S:
         message = "the %s tour ended %s: trying the %s tour in the %.0f s left"
         logger.info(message, TOURS[0], first.status, TOURS[1], left)
+        # the first solution's entry per column (8 bytes each: 0.5 GB at 4000 faces) is let go meanwhile
+        held = _solution_support(first.x)
+        first = dataclasses.replace(first, x=None)
+        attempts[0] = (*attempts[0][:-1], first)
         attempts.append(_tour_attempt(source, target, features, settings, timings, closed, TOURS[1], left))
-    chosen = min(range(len(attempts)), key=lambda k: _tour_rank(attempts[k][-1]))
+        ranks.append(_tour_rank(attempts[1][-1]))
+    chosen = min(range(len(attempts)), key=ranks.__getitem__)
+    if chosen == 0 and held is not None:
+        attempts[0] = (*attempts[0][:-1], dataclasses.replace(first, x=_solution_from_support(held)))
     tours = [
         {
             "tour": TOURS[k],
@@ -559,6 +572,24 @@ def _tour_attempt(
     solver = dataclasses.replace(settings.solver, time_limit=time_limit)
     tried = dataclasses.replace(settings, curve_tour=tour, solver=solver)
     return _prepared_and_solved(source, target, features, tried, timings, closed)
+
+
+def _solution_support(x: np.ndarray | None) -> tuple | None:
+    """A solution vector (n,) as its length and nonzero entries, (n, indices, values); None for none."""
+    if x is None:
+        return None
+    support = np.flatnonzero(x)
+    return x.size, support, x[support]
+
+
+def _solution_from_support(held: tuple | None) -> np.ndarray | None:
+    """The solution vector (n,) that :func:`_solution_support` held."""
+    if held is None:
+        return None
+    size, support, values = held
+    x = np.zeros(size)
+    x[support] = values
+    return x
 
 
 def _tour_rank(solved: SolveResult) -> tuple:
