@@ -121,9 +121,12 @@ def test_cli_second_opinion_that_fails_leaves_the_first_map(tmp_path, tiny_check
     "overrides, problem",
     [
         (["features=wks", "second_opinion=net.pt"], "second_opinion=net.pt: needs features=learned"),
-        (["features=learned", "checkpoint=net.pt", "second_opinion=missing.pt"], "second_opinion=missing.pt: no such file"),
+        (
+            ["features=learned", "checkpoint=net.pt", "second_opinion=missing.pt"],
+            "second_opinion=missing.pt: no such file",
+        ),
     ],
-)  # fmt: skip
+)
 def test_a_second_opinion_that_cannot_be_asked_is_refused_before_any_work(tmp_path, overrides, problem):
     assert run_match(composed("match", SMALL + overrides), tmp_path) == 2
     assert problem in json.loads((tmp_path / "result.json").read_text())["error"]
