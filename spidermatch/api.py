@@ -356,9 +356,10 @@ def match(
         Features of a second opinion, asked only when the map's quality verdict is
         "suspect": the pair is matched again with ``features`` and these joined
         (:func:`spidermatch.pipeline.joined_features`), and the second map is kept if its
-        verdict is "plausible" (``details.second_opinion`` says which was kept). Measured
-        with a second training of the network (``LearnedExtractor(other_checkpoint)``) on
-        partial-to-full pairs: docs/partial.md. Not with ``partial="both"``.
+        verdict is "plausible" (``details.second_opinion`` says which was kept; a second
+        opinion that fails leaves the first map, the error there). Measured with a second
+        training of the network (``LearnedExtractor(other_checkpoint)``) on partial-to-full
+        pairs: docs/partial.md. Not with ``partial="both"``.
 
     Returns
     -------
@@ -413,17 +414,21 @@ def match(
             logger.info("no second opinion with partial='both': the suspect map stands")
         else:
             started = time.perf_counter()
-            second_features = _second_opinion_features(
-                second_opinion,
-                (source_mesh, target_mesh),
-                ((source_weld, repaired), (target_weld, target_repaired)),
-                features_max_vertices or None,
-                kind.mode == "partial",
-            )
-            joined = (joined_features(a, b) for a, b in zip((feat_x, feat_y), second_features))
-            second = run_pipeline(matched_source, target_mesh, *joined, run_settings)
-            second.pair = kind
-            result = kept_opinion(result, second)
+            try:
+                second_features = _second_opinion_features(
+                    second_opinion,
+                    (source_mesh, target_mesh),
+                    ((source_weld, repaired), (target_weld, target_repaired)),
+                    features_max_vertices or None,
+                    kind.mode == "partial",
+                )
+                joined = (joined_features(a, b) for a, b in zip((feat_x, feat_y), second_features))
+                second = run_pipeline(matched_source, target_mesh, *joined, run_settings)
+                second.pair = kind
+                result = kept_opinion(result, second)
+            except Exception as error:  # the second opinion must not cost the first map
+                logger.warning("the second opinion failed (%s): the first map stands", error)
+                result.second_opinion = {"kept": "first", "error": str(error)}
             result.timings["second_opinion"] = time.perf_counter() - started
     if strict:
         result.raise_for_status()

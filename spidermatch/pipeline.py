@@ -110,7 +110,8 @@ class MatchSettings:
         Odd-vertex matching of the SpiderCurve's Christofides tour: "greedy" or "blossom".
     curve_tour : str
         "christofides" (the paper's tour), "two_opt" (shortened; fewer self-intersections) or
-        "auto" (the first, then the second unless certified: :data:`AUTO_TOUR_SHARE`).
+        "auto" (the first, then the second unless certified or within the requested gap:
+        :data:`AUTO_TOUR_SHARE`; without a time limit the first runs to its end).
     loss : RobustLoss
     constraints : tuple of str
         Constraint families to impose (all four by default).
@@ -511,10 +512,12 @@ def _solved_with_tours_in_turn(
 ) -> tuple[tuple, list[dict]]:
     """``curve_tour="auto"``: the paper's SpiderCurve, then, unless certified, the shortened one.
 
-    The paper's tour gets :data:`AUTO_TOUR_SHARE` of the time limit; if its solve ends neither
-    certified nor infeasible, the 2-opt tour is solved in the time the first left. Each is a
-    matching problem of its own (another curve, so other objective values): the result is the
-    certified one, else the one with the smaller gap (a matching before none).
+    The paper's tour gets :data:`AUTO_TOUR_SHARE` of the time limit (all of it when the rest
+    would be under :data:`MIN_SECOND_TOUR_S`, or without a limit); unless its solve ends
+    certified or within the requested gap, the 2-opt tour is solved in the time the first left.
+    Each is a matching problem of its own (another curve, so other objective values): the
+    result is the certified one, else the one with the smaller gap (a matching before none).
+    A second tour that fails (an exception) leaves the first's result.
 
     Returns
     -------
@@ -524,20 +527,25 @@ def _solved_with_tours_in_turn(
         Per tour tried: ``tour``, ``status``, ``objective``, ``bound``, ``gap``, ``solve_s``, ``chosen``.
     """
     limit = settings.solver.time_limit
-    first_limit = AUTO_TOUR_SHARE * limit if math.isfinite(limit) else limit
+    first_limit = _first_tour_limit(limit)
     attempts = [_tour_attempt(source, target, features, settings, timings, closed, TOURS[0], first_limit)]
     first = attempts[0][-1]
     ranks, held = [_tour_rank(first)], None
     left = limit - first.wall_time
-    if first.status not in ("optimal", "infeasible") and left >= MIN_SECOND_TOUR_S:
+    if _second_tour_wanted(first, settings.solver.mip_rel_gap) and left >= MIN_SECOND_TOUR_S:
         message = "the %s tour ended %s: trying the %s tour in the %.0f s left"
         logger.info(message, TOURS[0], first.status, TOURS[1], left)
         # the first solution's entry per column (8 bytes each: 0.5 GB at 4000 faces) is let go meanwhile
         held = _solution_support(first.x)
         first = dataclasses.replace(first, x=None)
         attempts[0] = (*attempts[0][:-1], first)
-        attempts.append(_tour_attempt(source, target, features, settings, timings, closed, TOURS[1], left))
-        ranks.append(_tour_rank(attempts[1][-1]))
+        try:
+            second = _tour_attempt(source, target, features, settings, timings, closed, TOURS[1], left)
+            attempts.append(second)
+            ranks.append(_tour_rank(second[-1]))
+        except Exception as error:  # e.g. out of memory building the second tour: the first stands
+            logger.warning("the %s tour failed (%s): the %s tour's result stands", TOURS[1], error, TOURS[0])
+            logger.debug("second tour", exc_info=True)
     chosen = min(range(len(attempts)), key=ranks.__getitem__)
     if chosen == 0 and held is not None:
         attempts[0] = (*attempts[0][:-1], dataclasses.replace(first, x=_solution_from_support(held)))
@@ -556,6 +564,25 @@ def _solved_with_tours_in_turn(
     if len(attempts) > 1:
         logger.info("the %s tour's result is kept (%s)", TOURS[chosen], attempts[chosen][-1].status)
     return attempts[chosen], tours
+
+
+def _first_tour_limit(limit: float) -> float:
+    """The paper's tour's share of ``limit``: all of it when the rest would be too short to use."""
+    if not math.isfinite(limit) or (1 - AUTO_TOUR_SHARE) * limit < MIN_SECOND_TOUR_S:
+        return limit
+    return AUTO_TOUR_SHARE * limit
+
+
+def _second_tour_wanted(first: SolveResult, mip_rel_gap: float) -> bool:
+    """Whether the first tour's result leaves the second tour anything to do.
+
+    Not when it is certified or within the requested gap (a loose ``mip_rel_gap`` turns a
+    result within it into "feasible", :func:`within_optimal_gap`). An infeasible first tour
+    does ask: infeasibility is the discretisation's, and another curve is another one.
+    """
+    if first.status == "optimal":
+        return False
+    return not (first.x is not None and math.isfinite(first.gap) and first.gap <= mip_rel_gap)
 
 
 def _tour_attempt(

@@ -114,7 +114,7 @@ def _tour_pair():
 def _recording_solver(monkeypatch, first_status: str, second_status: str = "optimal") -> list:
     """Replace the pipeline's solve: the real one, then each tour's result given the status asked for.
 
-    Returns the list to which each call appends (curve length, time limit, status returned).
+    Returns the list to which each call appends (curve length, time limit, status returned, solve time).
     """
     import dataclasses
 
@@ -127,9 +127,13 @@ def _recording_solver(monkeypatch, first_status: str, second_status: str = "opti
         status = (first_status, second_status)[len(calls)]
         if status == "feasible":  # the same matching, not proven: half its objective as the bound
             solved = dataclasses.replace(solved, status=status, bound=solved.objective / 2, gap=0.5)
-        elif status == "no_solution":
+        elif status in ("no_solution", "infeasible"):
             solved = dataclasses.replace(solved, status=status, x=None, objective=math.inf, gap=math.nan)
-        calls.append((curve.length, options.time_limit, solved.status))
+        elif status == "within_gap":  # a loose requested gap met: "feasible" within it
+            solved = dataclasses.replace(solved, status="feasible", gap=options.mip_rel_gap / 2)
+        elif status == "raise":
+            raise RuntimeError("out of memory building the second tour")
+        calls.append((curve.length, options.time_limit, solved.status, solved.wall_time))
         return solved
 
     monkeypatch.setattr(pipeline, "solve_with_strategy", solve)
@@ -151,7 +155,7 @@ def test_auto_tour_keeps_the_papers_curve_when_it_certifies_within_its_share(mon
 
     calls = _recording_solver(monkeypatch, "optimal")
     result = match(*_tour_pair(), _auto_settings(100.0))
-    assert [limit for _, limit, _ in calls] == [pytest.approx(AUTO_TOUR_SHARE * 100.0)]
+    assert [limit for _, limit, *_ in calls] == [pytest.approx(AUTO_TOUR_SHARE * 100.0)]
     assert result.solve.status == "optimal" and result.check.ok
     tried = [(t["tour"], t["status"], t["chosen"]) for t in result.tours]
     assert tried == [("christofides", "optimal", True)]
@@ -164,7 +168,7 @@ def test_auto_tour_tries_the_shortened_curve_in_the_time_left_and_keeps_the_cert
 
     calls = _recording_solver(monkeypatch, "feasible", "optimal")
     result = match(*_tour_pair(), _auto_settings(100.0))
-    (first_length, first_limit, _), (second_length, second_limit, _) = calls
+    (first_length, first_limit, *_), (second_length, second_limit, *_) = calls
     first_time = result.tours[0]["solve_s"]
     assert second_limit == pytest.approx(100.0 - first_time, abs=0.01)  # the whole budget, no more
     assert second_length < first_length  # the 2-opt curve is the shorter
@@ -183,7 +187,7 @@ def test_auto_tour_keeps_the_first_matching_when_the_second_tour_finds_none(monk
 
     calls = _recording_solver(monkeypatch, "feasible", "no_solution")
     result = match(*_tour_pair(), _auto_settings(100.0))
-    assert [status for *_, status in calls] == ["feasible", "no_solution"]
+    assert [status for _, _, status, _ in calls] == ["feasible", "no_solution"]
     assert result.tours[0]["chosen"] and not result.tours[1]["chosen"]
     assert result.solve.status == "feasible" and result.low_map is not None and result.check.ok
     assert result.curve.length == calls[0][0]  # the first tour's solution, held while the second ran
@@ -198,3 +202,40 @@ def test_an_unknown_tour_is_refused_by_name_in_the_api():
     settings = dataclasses.replace(_auto_settings(), curve_tour="three_opt")
     with pytest.raises(OptionError, match="curve_tour='three_opt': choose from christofides, two_opt, auto"):
         match(*_tour_pair(), settings)
+
+
+@pytest.mark.parametrize("limit, first_limit", [(15.0, 15.0), (math.inf, math.inf), (100.0, 40.0)])
+def test_auto_tour_gives_the_papers_curve_all_of_a_limit_too_short_to_share(monkeypatch, limit, first_limit):
+    from spidermatch.pipeline import match
+
+    calls = _recording_solver(monkeypatch, "feasible", "optimal")
+    match(*_tour_pair(), _auto_settings(limit))
+    assert calls[0][1] == first_limit  # 15 s: its 60 % would be under MIN_SECOND_TOUR_S
+    assert calls[1][1] == pytest.approx(limit - calls[0][3], abs=0.01)  # stopped early: the rest is used
+
+
+@pytest.mark.parametrize(
+    "first, second, tried, kept",
+    [
+        ("infeasible", "optimal", 2, "two_opt"),  # infeasibility is the curve's: the other is tried
+        ("within_gap", "optimal", 1, "christofides"),  # the requested gap is met: nothing to try
+        ("feasible", "raise", 1, "christofides"),  # a second tour that fails leaves the first's map
+    ],
+)
+def test_auto_tour_second_tour_only_when_it_can_help_and_never_at_the_first_maps_cost(
+    monkeypatch, first, second, tried, kept
+):
+    import dataclasses
+
+    from spidermatch.pipeline import match
+
+    calls = _recording_solver(monkeypatch, first, second)
+    settings = _auto_settings(100.0)
+    if first == "within_gap":
+        loose = dataclasses.replace(settings.solver, mip_rel_gap=0.05)
+        settings = dataclasses.replace(settings, solver=loose)
+    result = match(*_tour_pair(), settings)
+    assert len(result.tours) == tried and len(calls) == tried
+    assert [t["tour"] for t in result.tours if t["chosen"]] == [kept]
+    if kept == "christofides" and first != "infeasible":
+        assert result.low_map is not None and result.check.ok

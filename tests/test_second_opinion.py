@@ -81,25 +81,53 @@ def test_api_asks_the_second_opinion_of_a_suspect_map_and_keeps_a_plausible_one(
     assert record["kept"] == "second" and record["second"]["verdict"] == "plausible"
     assert result.status == "optimal" and result.dense_map is not None
     assert "second_opinion" in result.timings
+    monkeypatch.undo()  # the real judgement: this plausible map is not asked about
     unasked = spidermatch.match(x.mesh, y.mesh, features=features, resolution=60, second_opinion=features)
-    assert unasked.details.second_opinion is None  # a plausible map is not asked about
+    assert unasked.quality["verdict"] == "plausible" and unasked.details.second_opinion is None
+
+
+def test_api_second_opinion_that_fails_leaves_the_first_map(monkeypatch):
+    shapes = SyntheticShapes(n_shapes=2, n_verts=700, seed=0)
+    x, y = (shapes.load(name) for name in shapes.names)
+    features = x.mesh.centred().verts, y.mesh.centred().verts
+    _judged_suspect_once(monkeypatch, pipeline)
+    wrong = features[0][:10], features[1]  # ten rows for the whole source
+    result = spidermatch.match(x.mesh, y.mesh, features=features, resolution=60, second_opinion=wrong)
+    assert result.status == "optimal" and result.matches is not None
+    assert result.details.second_opinion["kept"] == "first"
+    assert "10 rows" in result.details.second_opinion["error"]
 
 
 def test_cli_second_opinion_rewrites_the_outputs_with_the_kept_map(tmp_path, tiny_checkpoint, monkeypatch):
     import spidermatch.cli.match as cli_match
+    import spidermatch.cli.second_opinion as cli_second
+
+    learned = ["features=learned", f"checkpoint={tiny_checkpoint}"]
+    assert run_match(composed("match", SMALL + learned), tmp_path / "alone") == 0
+
+    def other_features(cfg, inputs):  # a second descriptor that disagrees: another map
+        rng = np.random.default_rng(0)
+        return rng.normal(size=(inputs.source.n_verts, 8)), rng.normal(size=(inputs.target.n_verts, 8))
+
+    def judged_plausible(first, second):  # whatever its real verdict, the second map is kept
+        second.quality = {**(second.quality or {}), "verdict": "plausible", "reasons": []}
+        return pipeline.kept_opinion(first, second)
 
     _judged_suspect_once(monkeypatch, cli_match)
-    learned = ["features=learned", f"checkpoint={tiny_checkpoint}", f"second_opinion={tiny_checkpoint}"]
-    assert run_match(composed("match", SMALL + learned), tmp_path) == 0
-    result = json.loads((tmp_path / "result.json").read_text())
+    monkeypatch.setattr(cli_match, "second_opinion_features", other_features)
+    monkeypatch.setattr(cli_second, "kept_opinion", judged_plausible)
+    asked = learned + [f"second_opinion={tiny_checkpoint}"]
+    assert run_match(composed("match", SMALL + asked), tmp_path / "asked") == 0
+    result = json.loads((tmp_path / "asked" / "result.json").read_text())
     record = result["second_opinion"]
-    assert record["kept"] in ("first", "second") and record["time_s"] > 0
-    assert record["second"]["verdict"] in ("plausible", "suspect")
-    assert (record["kept"] == "second") == (record["second"]["verdict"] == "plausible")
+    assert record["kept"] == "second" and record["time_s"] > 0
+    assert result["objective"] == pytest.approx(record["second"]["objective"])  # the report is the second's
+    assert record["first"]["objective"] != pytest.approx(record["second"]["objective"])
     assert result["status"] == "optimal" and result["check"]["ok"]
-    assert result["quality"]["verdict"] == record[record["kept"]]["verdict"]
-    dense = np.load(tmp_path / "dense_map.npz")
-    assert len(dense[list(dense.keys())[0]]) > 0
+    files = [(tmp_path / run / "matches.csv").read_text() for run in ("alone", "asked")]
+    assert files[0] != files[1]  # matches.csv is the second map's
+    dense = [np.load(tmp_path / run / "dense_map.npz")["vertex"] for run in ("alone", "asked")]
+    assert not np.array_equal(*dense)  # and so is the dense map
 
 
 def test_cli_second_opinion_that_fails_leaves_the_first_map(tmp_path, tiny_checkpoint, monkeypatch):

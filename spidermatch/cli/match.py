@@ -161,7 +161,11 @@ def run_stages(cfg, output_dir: Path, report: dict, getters: tuple) -> int:
             stage = "dense outputs"
             dense_errors = write_dense(output_dir, result, inputs, (feat_x, feat_y), report)
             picture_errors = None if dense_errors is None else (inputs.source_corr, dense_errors)
-        if get_second_features is not None and needs_second_opinion(result) and not inputs.overlap:
+        asked = get_second_features is not None and needs_second_opinion(result)
+        if asked and inputs.overlap:
+            logger.info("no second opinion with partial=both: the suspect map stands")
+            report["second_opinion"] = {"kept": "first", "skipped": "partial=both"}
+        elif asked:
             stage = "second opinion"
             first = Opinion(result, (feat_x, feat_y), picture_errors)
             kept = second_opinion_stage(cfg, output_dir, inputs, settings, first, get_second_features, report)

@@ -15,6 +15,7 @@ import logging
 import time
 from pathlib import Path
 
+from spidermatch import shutdown
 from spidermatch.cli.inputs import MatchInputs
 from spidermatch.cli.outputs import result_summary, write_dense, write_interim_result, write_matching
 from spidermatch.pipeline import (
@@ -73,6 +74,10 @@ def second_opinion_stage(
     started = time.perf_counter()
     try:
         second, features = _matched_again(inputs, settings, first.features, get_second_features)
+    except shutdown.RunInterrupted as interrupted:  # what the second solve knew is not the first map's
+        report["second_opinion"] = {"kept": "first", "interrupted": dict(interrupted.known)}
+        interrupted.known.clear()
+        raise
     except Exception as error:  # the second opinion must not cost the first map
         logger.warning("the second opinion failed (%s): the first map stands", error)
         logger.debug("second opinion", exc_info=True)
