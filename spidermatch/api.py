@@ -372,8 +372,8 @@ def match(
         Bad meshes or features, with a message naming the mesh and the problem.
 
     """
-    from spidermatch.pipeline import joined_features, kept_opinion, needs_second_opinion
     from spidermatch.pipeline import match as run_pipeline
+    from spidermatch.pipeline import matched_with_second_opinion, needs_second_opinion
 
     raise_problems([feature_cap_problem(features_max_vertices, "features_max_vertices")])
     source_mesh, repaired, source_weld = mesh_of(source, "source", repair)
@@ -422,10 +422,10 @@ def match(
                     features_max_vertices or None,
                     kind.mode == "partial",
                 )
-                joined = (joined_features(a, b) for a, b in zip((feat_x, feat_y), second_features))
-                second = run_pipeline(matched_source, target_mesh, *joined, run_settings)
-                second.pair = kind
-                result = kept_opinion(result, second)
+                result, _ = matched_with_second_opinion(
+                    result, matched_source, target_mesh, (feat_x, feat_y), second_features, run_settings
+                )
+                result.pair = kind
             except Exception as error:  # the second opinion must not cost the first map
                 logger.warning("the second opinion failed (%s): the first map stands", error)
                 result.second_opinion = {"kept": "first", "error": str(error)}

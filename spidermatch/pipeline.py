@@ -655,6 +655,40 @@ def joined_features(first: np.ndarray, second: np.ndarray) -> np.ndarray:
     return np.hstack([unit_rows(first), unit_rows(second)]) / np.sqrt(2.0)
 
 
+def matched_with_second_opinion(
+    first: MatchResult,
+    source: Mesh,
+    target: Mesh,
+    features: tuple,
+    second_features: tuple,
+    settings: MatchSettings,
+) -> tuple[MatchResult, tuple]:
+    """Ask a second opinion about ``first`` (judged suspect): the pair matched again, the map to keep.
+
+    The pair is matched (:func:`match`, with ``settings.dense``) with each mesh's ``features``
+    and ``second_features`` joined (:func:`joined_features`); :func:`kept_opinion` chooses.
+
+    Parameters
+    ----------
+    first : MatchResult
+        The map judged suspect, of ``source`` to ``target``.
+    source, target : Mesh
+        The meshes ``first`` matched.
+    features, second_features : tuple of np.ndarray
+        (V_X, D1) and (V_Y, D1) the first map's features; (V_X, D2) and (V_Y, D2) the second opinion's.
+    settings : MatchSettings
+
+    Returns
+    -------
+    kept : MatchResult
+        ``first`` or the second map, its ``second_opinion`` filled in.
+    joined : tuple of np.ndarray
+        The joined features, (V_X, D1 + D2) and (V_Y, D1 + D2).
+    """
+    joined = tuple(joined_features(a, b) for a, b in zip(features, second_features))
+    return kept_opinion(first, match(source, target, *joined, settings)), joined
+
+
 def kept_opinion(first: MatchResult, second: MatchResult) -> MatchResult:
     """The map to keep after a second opinion: ``second`` if it is judged plausible, else ``first``.
 

@@ -100,7 +100,6 @@ def test_api_second_opinion_that_fails_leaves_the_first_map(monkeypatch):
 
 def test_cli_second_opinion_rewrites_the_outputs_with_the_kept_map(tmp_path, tiny_checkpoint, monkeypatch):
     import spidermatch.cli.match as cli_match
-    import spidermatch.cli.second_opinion as cli_second
 
     learned = ["features=learned", f"checkpoint={tiny_checkpoint}"]
     assert run_match(composed("match", SMALL + learned), tmp_path / "alone") == 0
@@ -111,11 +110,12 @@ def test_cli_second_opinion_rewrites_the_outputs_with_the_kept_map(tmp_path, tin
 
     def judged_plausible(first, second):  # whatever its real verdict, the second map is kept
         second.quality = {**(second.quality or {}), "verdict": "plausible", "reasons": []}
-        return pipeline.kept_opinion(first, second)
+        return real_kept_opinion(first, second)
 
     _judged_suspect_once(monkeypatch, cli_match)
     monkeypatch.setattr(cli_match, "second_opinion_features", other_features)
-    monkeypatch.setattr(cli_second, "kept_opinion", judged_plausible)
+    real_kept_opinion = pipeline.kept_opinion
+    monkeypatch.setattr(pipeline, "kept_opinion", judged_plausible)
     asked = learned + [f"second_opinion={tiny_checkpoint}"]
     assert run_match(composed("match", SMALL + asked), tmp_path / "asked") == 0
     result = json.loads((tmp_path / "asked" / "result.json").read_text())

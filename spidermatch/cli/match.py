@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from functools import partial
 from pathlib import Path
 
 from spidermatch import shutdown
@@ -45,9 +46,7 @@ logger = logging.getLogger("spidermatch.match")
 
 def run_match(cfg, output_dir: Path) -> int:
     """Run one match and write its outputs into ``output_dir``; return the exit code."""
-    second = None
-    if cfg.get("second_opinion"):
-        second = lambda inputs: second_opinion_features(cfg, inputs)  # noqa: E731
+    second = partial(second_opinion_features, cfg) if cfg.get("second_opinion") else None
     return run_pair(
         cfg, output_dir, lambda: load_inputs(cfg), lambda inputs: compute_features(cfg, inputs), None, second
     )

@@ -18,14 +18,7 @@ from pathlib import Path
 from spidermatch import shutdown
 from spidermatch.cli.inputs import MatchInputs
 from spidermatch.cli.outputs import result_summary, write_dense, write_interim_result, write_matching
-from spidermatch.pipeline import (
-    MatchResult,
-    MatchSettings,
-    add_dense_map,
-    joined_features,
-    kept_opinion,
-    match,
-)
+from spidermatch.pipeline import MatchResult, MatchSettings, matched_with_second_opinion
 
 logger = logging.getLogger("spidermatch.match")
 
@@ -73,7 +66,10 @@ def second_opinion_stage(
     logger.info("the map is judged suspect: asking the second opinion (%s)", cfg.second_opinion)
     started = time.perf_counter()
     try:
-        second, features = _matched_again(inputs, settings, first.features, get_second_features)
+        second_features = get_second_features(inputs)
+        kept, features = matched_with_second_opinion(
+            first.result, inputs.source, inputs.target, first.features, second_features, settings
+        )
     except shutdown.RunInterrupted as interrupted:  # what the second solve knew is not the first map's
         report["second_opinion"] = {"kept": "first", "interrupted": dict(interrupted.known)}
         interrupted.known.clear()
@@ -83,30 +79,18 @@ def second_opinion_stage(
         logger.debug("second opinion", exc_info=True)
         report["second_opinion"] = {"kept": "first", "error": str(error)}
         return first
-    kept = kept_opinion(first.result, second)
     seconds = round(time.perf_counter() - started, 3)
     if kept is first.result:
         report["second_opinion"] = {**kept.second_opinion, "time_s": seconds}
         return first
     timings = report["timings_s"]
-    report.update(result_summary(second, inputs, report["features"]))
-    report.update(status="writing", solver_status=second.solve.status, quality=second.quality)
+    report.update(result_summary(kept, inputs, report["features"]))
+    report.update(status="writing", solver_status=kept.solve.status, quality=kept.quality)
     report["timings_s"] = {**timings, "second_opinion": seconds}
-    report["second_opinion"] = {**second.second_opinion, "time_s": seconds}
-    picture_errors = write_matching(cfg, output_dir, second, inputs, report)
+    report["second_opinion"] = {**kept.second_opinion, "time_s": seconds}
+    picture_errors = write_matching(cfg, output_dir, kept, inputs, report)
     write_interim_result(cfg, output_dir, report)
-    if second.dense is not None:
-        dense_errors = write_dense(output_dir, second, inputs, features, report)
+    if kept.dense is not None:
+        dense_errors = write_dense(output_dir, kept, inputs, features, report)
         picture_errors = None if dense_errors is None else (inputs.source_corr, dense_errors)
-    return Opinion(second, features, picture_errors)
-
-
-def _matched_again(inputs: MatchInputs, settings: MatchSettings, features: tuple, get_second_features):
-    """The pair matched with ``features`` and the second network's joined; (MatchResult, joined features)."""
-    second_x, second_y = get_second_features(inputs)
-    joined = tuple(joined_features(a, b) for a, b in zip(features, (second_x, second_y)))
-    undensed = dataclasses.replace(settings, dense=None)
-    second = match(inputs.source, inputs.target, *joined, undensed, announce_quality=False)
-    if settings.dense is not None and second.low_map is not None and second.check.ok:
-        add_dense_map(second, inputs.source, inputs.target, joined, settings.dense, settings.partial)
-    return second, joined
+    return Opinion(kept, features, picture_errors)
