@@ -99,6 +99,7 @@ def run_instance(task: tuple) -> dict:
         "geo_err": None,
         "message": solved.message,
         "tours": tours_tried(result.tours),
+        "tours_side_by_side": bool(result.tours) and all(t.get("side_by_side") for t in result.tours),
     }
     row.update({f"{stage}_s": round(result.timings.get(stage, 0.0), 2) for stage in STAGES[1:]})
     row["features_s"] = round(features_s, 2)

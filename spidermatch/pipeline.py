@@ -9,6 +9,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import os
+import threading
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -16,7 +18,7 @@ from functools import partial
 
 import numpy as np
 
-from spidermatch import defaults
+from spidermatch import defaults, shutdown
 from spidermatch.dense.densify import densify
 from spidermatch.dense.maps import DenseMap, on_given_meshes
 from spidermatch.dense.settings import DenseSettings
@@ -46,7 +48,7 @@ from spidermatch.model.ilp import FAMILIES, IlpModel
 from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import ProductGraph, build_product_graph
 from spidermatch.model_size import check_model_fits
-from spidermatch.solve.isolate import solve_isolated
+from spidermatch.solve.isolate import POLL_S, can_isolate, solve_isolated
 from spidermatch.solve.strategies import LAZY_STRATEGIES, solve_with_strategy, strategy_for
 from spidermatch.solve.types import SolveResult, SolverOptions, finite_or_none
 from spidermatch.validate import check_settings
@@ -449,7 +451,9 @@ def match(
     timings: dict = {}
     closed = closed_copies(source, target, settings)
     features = (source_features, target_features)
-    if settings.curve_tour == AUTO_TOUR:
+    if settings.curve_tour == AUTO_TOUR and side_by_side_threads(settings):
+        attempt, tours = _solved_with_tours_side_by_side(source, target, features, settings, timings, closed)
+    elif settings.curve_tour == AUTO_TOUR:
         attempt, tours = _solved_with_tours_in_turn(source, target, features, settings, timings, closed)
     else:
         attempt, tours = _prepared_and_solved(source, target, features, settings, timings, closed), []
@@ -488,12 +492,23 @@ def _prepared_and_solved(
     """
     low_x, low_y, curve, graph, model = prepare(source, target, *features, settings, timings, closed)
     with _stage(timings, "solve"):
-        solve = partial(solve_with_strategy, settings.strategy)
-        if settings.isolate_solver:
-            solved = solve_isolated(solve, model, graph, curve, settings.solver)
-        else:
-            solved = solve(model, graph, curve, settings.solver)
-        solved = within_optimal_gap(solved)
+        solved = _solved(model, graph, curve, settings)
+    return low_x, low_y, curve, graph, _model_size(model), solved
+
+
+def _solved(
+    model, graph, curve, settings: MatchSettings, cancel: threading.Event | None = None
+) -> SolveResult:
+    """The solve of a prepared model with ``settings``' strategy (isolated if asked), logged.
+
+    ``cancel``: see :func:`~spidermatch.solve.isolate.solve_isolated` (isolated solves only).
+    """
+    solve = partial(solve_with_strategy, settings.strategy)
+    if settings.isolate_solver:
+        solved = solve_isolated(solve, model, graph, curve, settings.solver, cancel=cancel)
+    else:
+        solved = solve(model, graph, curve, settings.solver)
+    solved = within_optimal_gap(solved)
     logger.info(
         "solver (%s tour): %s, objective %.6g, bound %.6g, gap %.2e",
         settings.curve_tour,
@@ -502,9 +517,13 @@ def _prepared_and_solved(
         solved.bound,
         solved.gap,
     )
-    nonzeros = getattr(model, "nnz", None)  # a LazyModel (colgen) never builds the full matrix
-    model_size = {"variables": model.n_vars, "rows": model.n_rows, "nonzeros": nonzeros}
-    return low_x, low_y, curve, graph, model_size, solved
+    return solved
+
+
+def _model_size(model) -> dict:
+    """The ILP's ``variables``, ``rows`` and ``nonzeros`` (None for a LazyModel, which never builds them)."""
+    nonzeros = getattr(model, "nnz", None)
+    return {"variables": model.n_vars, "rows": model.n_rows, "nonzeros": nonzeros}
 
 
 def _solved_with_tours_in_turn(
@@ -532,7 +551,7 @@ def _solved_with_tours_in_turn(
     first = attempts[0][-1]
     ranks, held = [_tour_rank(first)], None
     left = limit - first.wall_time
-    if _second_tour_wanted(first, settings.solver.mip_rel_gap) and left >= MIN_SECOND_TOUR_S:
+    if not _tour_settled(first, settings.solver.mip_rel_gap) and left >= MIN_SECOND_TOUR_S:
         message = "the %s tour ended %s: trying the %s tour in the %.0f s left"
         logger.info(message, TOURS[0], first.status, TOURS[1], left)
         # the first solution's entry per column (8 bytes each: 0.5 GB at 4000 faces) is let go meanwhile
@@ -549,7 +568,15 @@ def _solved_with_tours_in_turn(
     chosen = min(range(len(attempts)), key=ranks.__getitem__)
     if chosen == 0 and held is not None:
         attempts[0] = (*attempts[0][:-1], dataclasses.replace(first, x=_solution_from_support(held)))
-    tours = [
+    tours = _tour_records([solved for *_, solved in attempts], chosen, side_by_side=False)
+    if len(attempts) > 1:
+        logger.info("the %s tour's result is kept (%s)", TOURS[chosen], attempts[chosen][-1].status)
+    return attempts[chosen], tours
+
+
+def _tour_records(solves: list[SolveResult], chosen: int, side_by_side: bool) -> list[dict]:
+    """``result.json["curve_tours"]``: per tour tried, its outcome and whether it was kept."""
+    return [
         {
             "tour": TOURS[k],
             "status": solved.status,
@@ -558,12 +585,105 @@ def _solved_with_tours_in_turn(
             "gap": finite_or_none(solved.gap),
             "solve_s": round(solved.wall_time, 3),
             "chosen": k == chosen,
+            "side_by_side": side_by_side,
+            "message": solved.message,
         }
-        for k, (*_, solved) in enumerate(attempts)
+        for k, solved in enumerate(solves)
     ]
-    if len(attempts) > 1:
-        logger.info("the %s tour's result is kept (%s)", TOURS[chosen], attempts[chosen][-1].status)
-    return attempts[chosen], tours
+
+
+def usable_cores() -> int:
+    """Cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def side_by_side_threads(settings: MatchSettings) -> int:
+    """HiGHS threads for each of ``curve_tour="auto"``'s two tours solved side by side; 0: in turn.
+
+    Side by side needs two solver processes (``isolate_solver`` on a platform that forks) and
+    at least two cores for the solve: ``solver.threads``, or the cores this process may use when
+    it is 0 (HiGHS's choice). Each tour gets half of them; ``solver.threads=1`` solves in turn.
+    """
+    if not (settings.isolate_solver and can_isolate()):
+        return 0
+    cores = settings.solver.threads or usable_cores()
+    return cores // len(TOURS)
+
+
+def _solved_with_tours_side_by_side(
+    source: Mesh, target: Mesh, features: tuple, settings: MatchSettings, timings: dict, closed: tuple
+) -> tuple[tuple, list[dict]]:
+    """``curve_tour="auto"`` on two cores or more: both tours solved at once, each with the whole limit.
+
+    Both tours are prepared here, then solved in two solver processes side by side (each with
+    :func:`side_by_side_threads` HiGHS threads and half the memory its MIP checks count on).
+    When one ends certified or within the requested gap, the other is stopped
+    (:data:`~spidermatch.solve.isolate.CANCELLED`) and returns the best closed path it had.
+    The result is chosen as in :func:`_solved_with_tours_in_turn`. Which of two tours that
+    would both be certified is returned can depend on which finishes first.
+    A second tour whose preparation fails leaves the first solved alone.
+
+    Returns
+    -------
+    As :func:`_solved_with_tours_in_turn`; each ``tours`` record has ``side_by_side`` true.
+    """
+    threads = side_by_side_threads(settings)
+    solver = dataclasses.replace(
+        settings.solver, threads=threads, memory_share=settings.solver.memory_share / len(TOURS)
+    )
+    tried = [dataclasses.replace(settings, curve_tour=tour, solver=solver) for tour in TOURS]
+    prepared = [prepare(source, target, *features, tried[0], timings, closed)]
+    try:
+        prepared.append(prepare(source, target, *features, tried[1], timings, closed))
+    except Exception as error:  # e.g. out of memory: the first tour alone, as asked of a single tour
+        logger.warning("the %s tour could not be prepared (%s): the %s tour alone", TOURS[1], error, TOURS[0])
+        logger.debug("second tour", exc_info=True)
+        low_x, low_y, curve, graph, model = prepared[0]
+        with _stage(timings, "solve"):
+            solved = _solved(model, graph, curve, dataclasses.replace(settings, curve_tour=TOURS[0]))
+        return (low_x, low_y, curve, graph, _model_size(model), solved), _tour_records([solved], 0, False)
+    logger.info(
+        "solving the %s and %s tours side by side (HiGHS on %d thread%s each)",
+        *TOURS, threads, "" if threads == 1 else "s",
+    )  # fmt: skip
+    with _stage(timings, "solve"):
+        solves = _solved_at_once(prepared, tried)
+    ranks = [_tour_rank(solved) for solved in solves]
+    chosen = min(range(len(solves)), key=ranks.__getitem__)
+    logger.info("the %s tour's result is kept (%s)", TOURS[chosen], solves[chosen].status)
+    low_x, low_y, curve, graph, model = prepared[chosen]
+    attempt = (low_x, low_y, curve, graph, _model_size(model), solves[chosen])
+    return attempt, _tour_records(solves, chosen, side_by_side=True)
+
+
+def _solved_at_once(prepared: list[tuple], tried: list[MatchSettings]) -> list[SolveResult]:
+    """Each prepared tour solved in a thread of its own (watching its solver process).
+
+    Once one is settled (:func:`_tour_settled`) the others are stopped.
+
+    A solve that raised counts as failed (status ``"error"``) while another has a result; an
+    interrupt (:class:`~spidermatch.shutdown.RunInterrupted`), or every solve raising, is re-raised.
+    """
+    cancel = threading.Event()
+    outcomes: list = [None] * len(prepared)
+
+    def run(k: int) -> None:
+        low_x, low_y, curve, graph, model = prepared[k]
+        try:
+            outcomes[k] = _solved(model, graph, curve, tried[k], cancel)
+        except BaseException as error:  # noqa: BLE001 - handed to the main thread
+            outcomes[k] = error
+        if isinstance(outcomes[k], SolveResult) and _tour_settled(outcomes[k], tried[k].solver.mip_rel_gap):
+            cancel.set()
+
+    workers = [threading.Thread(target=run, args=(k,), name=f"solve-{tour}") for k, tour in enumerate(TOURS)]
+    with shutdown.native_call():  # a signal is only recorded here: each worker forwards it to its process
+        for worker in workers:
+            worker.start()
+        for worker in workers:
+            while worker.is_alive():
+                worker.join(POLL_S)
+    return _outcomes_or_raise(outcomes, prepared)
 
 
 def _first_tour_limit(limit: float) -> float:
@@ -573,16 +693,36 @@ def _first_tour_limit(limit: float) -> float:
     return AUTO_TOUR_SHARE * limit
 
 
-def _second_tour_wanted(first: SolveResult, mip_rel_gap: float) -> bool:
-    """Whether the first tour's result leaves the second tour anything to do.
+def _tour_settled(solved: SolveResult, mip_rel_gap: float) -> bool:
+    """Whether a tour's result leaves the other tour nothing to do.
 
-    Not when it is certified or within the requested gap (a loose ``mip_rel_gap`` turns a
-    result within it into "feasible", :func:`within_optimal_gap`). An infeasible first tour
-    does ask: infeasibility is the discretisation's, and another curve is another one.
+    When it is certified or within the requested gap (a loose ``mip_rel_gap`` turns a
+    result within it into "feasible", :func:`within_optimal_gap`). An infeasible tour is not
+    settled: infeasibility is the discretisation's, and another curve is another one.
     """
-    if first.status == "optimal":
-        return False
-    return not (first.x is not None and math.isfinite(first.gap) and first.gap <= mip_rel_gap)
+    if solved.status == "optimal":
+        return True
+    return solved.x is not None and math.isfinite(solved.gap) and solved.gap <= mip_rel_gap
+
+
+def _outcomes_or_raise(outcomes: list, prepared: list[tuple]) -> list[SolveResult]:
+    """:func:`_solved_at_once`'s outcomes as results; an exception becomes status "error" or is raised."""
+    for outcome in outcomes:
+        if isinstance(outcome, shutdown.RunInterrupted):
+            raise outcome
+    if all(isinstance(outcome, BaseException) for outcome in outcomes):
+        raise outcomes[0]
+    results = []
+    for k, outcome in enumerate(outcomes):
+        if isinstance(outcome, BaseException):
+            logger.warning("the %s tour's solve failed (%s)", TOURS[k], outcome)
+            model = prepared[k][-1]
+            outcome = SolveResult(
+                "error", None, math.inf, -math.inf, math.nan, 0.0, model.n_vars, model.n_rows, 0,
+                f"the solve raised {type(outcome).__name__}: {outcome}",
+            )  # fmt: skip
+        results.append(outcome)
+    return results
 
 
 def _tour_attempt(

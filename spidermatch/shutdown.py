@@ -43,6 +43,7 @@ logger = logging.getLogger(__name__)
 EXIT_BAD_INPUT = 2
 EXIT_OUTPUT_ERROR = 6
 SIGNAL_EXIT_CODES = {signal.SIGINT: 130, signal.SIGTERM: 143}
+_NATIVE_LOCK = threading.Lock()  # native_call's counter, entered by the threads that watch solver processes
 
 
 class RunInterrupted(BaseException):
@@ -201,12 +202,17 @@ def signals_held():
 
 @contextlib.contextmanager
 def native_call():
-    """Mark a call into C++ (HiGHS): the signal handler only records the signal meanwhile."""
-    _STATE.native += 1
+    """Mark a call into C++ (HiGHS): the signal handler only records the signal meanwhile.
+
+    Safe to enter from several threads at once (two solver processes watched side by side).
+    """
+    with _NATIVE_LOCK:
+        _STATE.native += 1
     try:
         yield
     finally:
-        _STATE.native -= 1
+        with _NATIVE_LOCK:
+            _STATE.native -= 1
 
 
 def _handler(signum, frame) -> None:

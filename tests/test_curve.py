@@ -239,3 +239,128 @@ def test_auto_tour_second_tour_only_when_it_can_help_and_never_at_the_first_maps
     assert [t["tour"] for t in result.tours if t["chosen"]] == [kept]
     if kept == "christofides" and first != "infeasible":
         assert result.low_map is not None and result.check.ok
+
+
+def _side_by_side_solver(monkeypatch, hanging: str | None = None) -> dict:
+    """Record each tour's curve length while it is prepared; the solve (in its solver process) then
+    reports its options in its message, and the ``hanging`` tour's never ends (it sleeps past its limit).
+
+    Returns the tour of each prepared curve length (filled by ``match``).
+    """
+    import dataclasses
+    import time
+
+    from spidermatch import pipeline
+
+    real_prepare, real_solve, tour_of_length = pipeline.prepare, pipeline.solve_with_strategy, {}
+
+    def prepare(*args, **kwargs):
+        prepared = real_prepare(*args, **kwargs)
+        tour_of_length[prepared[2].length] = args[4].curve_tour
+        return prepared
+
+    def solve(strategy, model, graph, curve, options):  # runs in the solver process
+        if tour_of_length[curve.length] == hanging:
+            time.sleep(3 * options.time_limit)
+        solved = real_solve(strategy, model, graph, curve, options)
+        return dataclasses.replace(solved, message=f"threads={options.threads} share={options.memory_share}")
+
+    monkeypatch.setattr(pipeline, "prepare", prepare)
+    monkeypatch.setattr(pipeline, "solve_with_strategy", solve)
+    return tour_of_length
+
+
+def _isolated_auto_settings(time_limit: float = 30.0):
+    import dataclasses
+
+    return dataclasses.replace(_auto_settings(time_limit), isolate_solver=True)
+
+
+@pytest.mark.parametrize("hanging, kept", [("two_opt", "christofides"), ("christofides", "two_opt")])
+def test_auto_tour_side_by_side_stops_the_other_tour_once_one_is_certified(monkeypatch, hanging, kept):
+    from spidermatch import pipeline
+    from spidermatch.solve.isolate import CANCELLED
+
+    monkeypatch.setattr(pipeline, "usable_cores", lambda: 4)
+    tour_of_length = _side_by_side_solver(monkeypatch, hanging)
+    result = pipeline.match(*_tour_pair(), _isolated_auto_settings(30.0))
+    assert sorted(tour_of_length.values()) == ["christofides", "two_opt"]  # both prepared before solving
+    records = {t["tour"]: t for t in result.tours}
+    assert all(t["side_by_side"] for t in result.tours)
+    assert records[kept]["chosen"] and records[kept]["status"] == "optimal"
+    assert records[kept]["message"] == "threads=2 share=0.5"  # half the cores and memory each
+    # the hanging tour was stopped once the other was certified, not at its limit
+    assert records[hanging]["status"] == "no_solution" and CANCELLED in records[hanging]["message"]
+    assert tour_of_length[result.curve.length] == kept and result.check.ok
+    assert result.solve.status == "optimal"
+
+
+def test_auto_tour_on_one_core_solves_the_tours_in_turn(monkeypatch):
+    import dataclasses
+
+    from spidermatch import pipeline
+
+    monkeypatch.setattr(pipeline, "usable_cores", lambda: 1)
+    _side_by_side_solver(monkeypatch)
+    result = pipeline.match(*_tour_pair(), _isolated_auto_settings(30.0))
+    tried = [(t["tour"], t["side_by_side"], t["chosen"]) for t in result.tours]
+    assert tried == [("christofides", False, True)]
+    assert result.tours[0]["message"] == "threads=0 share=1.0"  # the settings as given
+    assert pipeline.side_by_side_threads(_auto_settings()) == 0  # no solver processes: in turn too
+    monkeypatch.setattr(pipeline, "usable_cores", lambda: 4)
+    one_thread = _isolated_auto_settings()
+    one_thread = dataclasses.replace(one_thread, solver=dataclasses.replace(one_thread.solver, threads=1))
+    assert pipeline.side_by_side_threads(one_thread) == 0  # solver.threads=1: one core, in turn
+    assert pipeline.side_by_side_threads(_isolated_auto_settings()) == 2
+
+
+def test_auto_tour_side_by_side_keeps_the_certified_tour_when_the_other_fails(monkeypatch):
+    from spidermatch import pipeline
+
+    monkeypatch.setattr(pipeline, "usable_cores", lambda: 2)
+    tour_of_length = _side_by_side_solver(monkeypatch)
+    real = pipeline.solve_with_strategy
+
+    def solve(strategy, model, graph, curve, options):
+        if tour_of_length[curve.length] == "christofides":
+            raise RuntimeError("a failure inside the paper's tour's solve")
+        return real(strategy, model, graph, curve, options)
+
+    monkeypatch.setattr(pipeline, "solve_with_strategy", solve)
+    result = pipeline.match(*_tour_pair(), _isolated_auto_settings(30.0))
+    records = {t["tour"]: t for t in result.tours}
+    failed = records["christofides"]
+    assert failed["status"] == "error" and "a failure inside" in failed["message"]
+    assert records["two_opt"]["chosen"] and records["two_opt"]["message"] == "threads=1 share=0.5"
+    assert result.solve.status == "optimal" and result.check.ok
+
+
+def test_auto_tour_side_by_side_stops_both_solver_processes_on_a_signal(monkeypatch):
+    import os
+    import signal
+    import threading
+    import time
+
+    from spidermatch import pipeline, shutdown
+
+    monkeypatch.setattr(pipeline, "usable_cores", lambda: 2)
+    prepared = _side_by_side_solver(monkeypatch)
+    real = pipeline.solve_with_strategy
+
+    def solve(strategy, model, graph, curve, options):  # both hang: only a signal ends them early
+        time.sleep(3 * options.time_limit)
+        return real(strategy, model, graph, curve, options)
+
+    monkeypatch.setattr(pipeline, "solve_with_strategy", solve)
+
+    def signal_once_both_solve():
+        while len(prepared) < 2:
+            time.sleep(0.05)
+        time.sleep(1.0)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=signal_once_both_solve, daemon=True).start()
+    # at the limit both processes would be killed and the run would end without an interrupt
+    with shutdown.signals_handled(), pytest.raises(shutdown.RunInterrupted) as stopped:
+        pipeline.match(*_tour_pair(), _isolated_auto_settings(60.0))
+    assert stopped.value.signum == signal.SIGTERM

@@ -326,7 +326,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         columns = np.union1d(selection.columns, base)
         if incumbent is not None:
             columns = np.union1d(columns, used_columns(incumbent))
-        too_large = mip_memory_problem(columns.size)
+        too_large = mip_memory_problem(columns.size, _room(options))
         if too_large:
             return _stopped_before_mip(lazy, lp, incumbent, best, too_large)
         built.append(columns)
@@ -427,6 +427,12 @@ def mip_memory_problem(n_columns: int, room: int | None = None) -> str | None:
         f"the next MIP over {n_columns} columns would need about {needed / GIB:.1f} GiB, "
         f"but only {room / GIB:.1f} GiB of memory is available"
     )
+
+
+def _room(options: SolverOptions) -> int | None:
+    """Bytes this solve may still allocate: its ``memory_share`` of the available memory (None: unknown)."""
+    room = available_memory()
+    return None if room is None else int(options.memory_share * room)
 
 
 def _stopped_before_mip(

@@ -76,6 +76,7 @@ OVERRUN_KILL_S = 4.5  # how far past its time limit the solver process may run b
 RETRY_OPTIONS = {"mip_heuristic_effort": 0.0, "mip_heuristic_run_feasibility_jump": False}  # after a death
 RETRY_THREADS = 1  # an allocation failing on a HiGHS worker thread aborts; on its main thread it is a status
 REPAIR_AFTER_DEATH_SHARE = 0.5  # of the time left, the most a dead process's detached solution gets
+CANCELLED = "stopped: no longer wanted (another curve's solve beside it was certified)"
 RETRY_MIN_S = 10.0  # the least time left for which a solve is retried after its process died
 # (the budget is kept within 5 s: HiGHS is interrupted at +OVERRUN_GRACE_S where it checks, the
 # process killed at +4.5 s where it does not, and the kill takes well under a second)
@@ -184,7 +185,13 @@ class ForkedChild:
 
 
 def solve_isolated(
-    solve, model, graph, curve, options: SolverOptions, reserve_repair: bool = True
+    solve,
+    model,
+    graph,
+    curve,
+    options: SolverOptions,
+    reserve_repair: bool = True,
+    cancel: threading.Event | None = None,
 ) -> SolveResult:
     """``solve(model, graph, curve, options)`` in a forked solver process.
 
@@ -201,6 +208,11 @@ def solve_isolated(
         Repair the child's last solution with detached cycles in a reserve at the end of the
         limit when the child is still inside HiGHS then (module docstring; ``model`` must be a
         :class:`~spidermatch.model.lazy_model.LazyModel`, else this is off).
+    cancel : threading.Event, optional
+        Set by another thread when this solve is no longer wanted (a solve of another curve
+        beside it was certified: ``curve_tour="auto"``); the child is then killed and the
+        result is the best closed path it reported, with :data:`CANCELLED` in its message. No
+        repair or retry follows a cancelled solve.
 
     Returns
     -------
@@ -223,10 +235,13 @@ def solve_isolated(
     sender.close()
     logger.info("solver process %d started", child.pid)
     repair_at = math.inf
+    if cancel is not None and cancel.is_set():
+        logger.info("not solving: %s", CANCELLED)
+        return _overran(ChildReports(), model, 0.0, options, CANCELLED)
     if reserve_repair and isinstance(model, LazyModel) and math.isfinite(options.time_limit):
         repair_at = start + options.time_limit - parent_reserve(options.time_limit)
     try:
-        result, reports = _watch(child, receiver, model, start, options, repair_at)
+        result, reports = _watch(child, receiver, model, start, options, repair_at, cancel)
         if result is None:  # stopped at repair_at for the repair
             result = _repaired_in_reserve(reports, model, graph, curve, start, options)
     finally:
@@ -444,7 +459,15 @@ class ChildReports:
         return self.path is None or self.detached[0] < self.path[0]
 
 
-def _watch(child, receiver, model, start: float, options: SolverOptions, repair_at: float = math.inf):
+def _watch(
+    child,
+    receiver,
+    model,
+    start: float,
+    options: SolverOptions,
+    repair_at: float = math.inf,
+    cancel: threading.Event | None = None,
+):
     """Wait for the child's outcome, forwarding signals; (what it sent or a failure result, reports).
 
     A child still solving ``OVERRUN_KILL_S`` past ``options.time_limit`` (seconds from
@@ -486,6 +509,12 @@ def _watch(child, receiver, model, start: float, options: SolverOptions, repair_
             if finishing or forwarded_at is not None:
                 continue
             now = time.perf_counter()
+            if cancel is not None and cancel.is_set():
+                child.kill()
+                child.join()
+                reports.drain(receiver)
+                logger.info("solver process %d stopped: %s", child.pid, CANCELLED)
+                return _overran(reports, model, now - start, options, CANCELLED), reports
             if now > kill_at or (now > repair_at and reports.repair_would_help()):
                 child.kill()
                 child.join()

@@ -36,6 +36,9 @@ class SolverOptions:
         Show HiGHS's own log.
     extra : dict
         Any further HiGHS options by name.
+    memory_share : float
+        Share of the memory available at a check that this solve may count on before it
+        starts a large restricted MIP (0.5 for each of two solves side by side).
 
     """
 
@@ -45,6 +48,7 @@ class SolverOptions:
     presolve: str = "choose"
     log: bool = False
     extra: dict = field(default_factory=dict)
+    memory_share: float = 1.0
 
 
 OUT_OF_MEMORY = "Memory limit reached"
