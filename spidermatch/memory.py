@@ -13,12 +13,15 @@ from pathlib import Path
 GIB = float(1 << 30)
 
 
-def available_memory() -> int | None:
+def available_memory(share: float = 1.0) -> int | None:
     """Bytes this process may still allocate: the least of free memory, its cgroup's and RLIMIT_AS's room.
 
-    None where none of them can be read (then nothing is refused).
+    None where none of them can be read (then nothing is refused). ``share``: the part of the
+    free memory and the cgroup's room counted for this process (0.5 for each of two processes
+    that allocate side by side); RLIMIT_AS is per process and counted whole.
     """
-    limits = [_mem_available(), _cgroup_room()]
+    shared = [_mem_available(), _cgroup_room()]
+    limits = [None if room is None else int(share * room) for room in shared]
     soft, _ = resource.getrlimit(resource.RLIMIT_AS)
     if soft != resource.RLIM_INFINITY:
         limits.append(soft - _own_address_space())

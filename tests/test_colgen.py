@@ -237,7 +237,7 @@ def test_a_mip_that_would_not_fit_in_memory_is_not_started_and_the_answer_stays_
     plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
     monkeypatch.setattr(colgen, "_restricted_mip", lambda *args: pytest.fail("a MIP was started"))
     monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)
-    monkeypatch.setattr(colgen, "available_memory", lambda: 1024)  # 1 KiB left
+    monkeypatch.setattr(colgen, "available_memory", lambda share=1.0: 1024)  # 1 KiB left
     solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, replace(EXACT, time_limit=600.0))
     assert solved.status == "feasible" and "would need about" in solved.message
     assert solved.bound <= plain.objective * (1 + 1e-9) <= solved.objective * (1 + 1e-9)
@@ -249,6 +249,23 @@ def test_mip_memory_problem_names_both_sizes():
 
     assert mip_memory_problem(1000, room=1000 * MIP_BYTES_PER_COLUMN) is None
     assert "1001 columns" in mip_memory_problem(1001, room=1000 * MIP_BYTES_PER_COLUMN)
+
+
+def test_two_solves_side_by_side_count_on_half_the_free_memory_each(monkeypatch):
+    """Each of two solves side by side counts on half the free memory; RLIMIT_AS is per process."""
+    import resource
+
+    from spidermatch import memory
+    from spidermatch.solve.colgen import MIP_BYTES_PER_COLUMN, _room
+
+    free = 1000 * MIP_BYTES_PER_COLUMN
+    monkeypatch.setattr(memory, "_mem_available", lambda: free)
+    monkeypatch.setattr(memory, "_cgroup_room", lambda: None)
+    monkeypatch.setattr(memory.resource, "getrlimit", lambda kind: (resource.RLIM_INFINITY,) * 2)
+    assert _room(EXACT) == free and _room(replace(EXACT, memory_share=0.5)) == free // 2
+    monkeypatch.setattr(memory, "_own_address_space", lambda: 0)
+    monkeypatch.setattr(memory.resource, "getrlimit", lambda kind: (free // 4, free // 4))
+    assert _room(replace(EXACT, memory_share=0.5)) == free // 4  # the process's own cap, not halved
 
 
 def test_a_further_step_needs_five_seconds_and_five_percent_of_the_limit():

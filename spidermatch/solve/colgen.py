@@ -430,9 +430,8 @@ def mip_memory_problem(n_columns: int, room: int | None = None) -> str | None:
 
 
 def _room(options: SolverOptions) -> int | None:
-    """Bytes this solve may still allocate: its ``memory_share`` of the available memory (None: unknown)."""
-    room = available_memory()
-    return None if room is None else int(options.memory_share * room)
+    """Bytes this solve may still allocate, with its ``memory_share`` of the free memory (None: unknown)."""
+    return available_memory(options.memory_share)
 
 
 def _stopped_before_mip(

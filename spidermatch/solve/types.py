@@ -37,8 +37,9 @@ class SolverOptions:
     extra : dict
         Any further HiGHS options by name.
     memory_share : float
-        Share of the memory available at a check that this solve may count on before it
-        starts a large restricted MIP (0.5 for each of two solves side by side).
+        Share of the machine's free memory that this solve may count on before it starts a
+        large restricted MIP (0.5 for each of two solves side by side;
+        :func:`spidermatch.memory.available_memory`).
 
     """
 
