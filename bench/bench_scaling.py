@@ -57,6 +57,7 @@ def run_instance(task: tuple) -> dict:
     from spidermatch.solve.types import SolverOptions
     from spidermatch.validate import OptionError
 
+    sampler = TreeMemorySampler()
     start = time.perf_counter()
     x, y, feat_x, feat_y = load_pair_with_features(data, pair, features, checkpoint, adapt_steps)
     features_s = time.perf_counter() - start
@@ -74,6 +75,7 @@ def run_instance(task: tuple) -> dict:
         return {
             "pair": f"{pair[0]}:{pair[1]}", "faces": faces, "strategy": strategy, "status": "refused",
             "message": str(refused), "features_s": round(features_s, 2), **peak_memory(),
+            "sampled_peak_mib": sampler.stop(),
         }  # fmt: skip
     solved = result.solve
     row = {
@@ -108,6 +110,7 @@ def run_instance(task: tuple) -> dict:
         errors = sparse_map_errors(pairs[:, 0], pairs[:, 1], x.mesh, x.corr, y.corr, y.mesh)
         row["geo_err"] = round(errors.mean, 4)
     row.update(peak_memory())
+    row["sampled_peak_mib"] = sampler.stop()
     return row
 
 
@@ -125,6 +128,60 @@ def _columns_built(strategy: str, solved, full_columns: int) -> int | None:
     if solved.columns_built is not None or strategy == "colgen":
         return solved.columns_built
     return full_columns
+
+
+class TreeMemorySampler:
+    """The largest total memory of this process and its descendants, sampled in a thread.
+
+    The total is the sum of proportional set sizes (``Pss`` in ``/proc/<pid>/smaps_rollup``),
+    which counts a page shared after ``fork`` once in all, so it is what the process tree held
+    at that moment; with two solver processes side by side (``curve.tour=auto``) the sum of the
+    largest child's and this process's peaks (:func:`peak_memory`) is not. Linux only (0 elsewhere).
+    """
+
+    def __init__(self, every_s: float = 0.5) -> None:
+        import threading
+
+        self.peak_kib, self._every_s, self._done = 0, every_s, threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+
+    def _sample(self) -> None:
+        import os
+
+        while not self._done.wait(self._every_s):
+            self.peak_kib = max(self.peak_kib, sum(_pss_kib(pid) for pid in _process_tree(os.getpid())))
+
+    def stop(self) -> float:
+        """Stop sampling; the peak in MiB."""
+        self._done.set()
+        self._thread.join()
+        return round(self.peak_kib / 1024, 1)
+
+
+def _process_tree(pid: int) -> list[int]:
+    """``pid`` and its descendants (Linux ``/proc``; just ``pid`` where it cannot be read)."""
+    tree, todo = [], [pid]
+    while todo:
+        current = todo.pop()
+        tree.append(current)
+        try:
+            for task in Path(f"/proc/{current}/task").iterdir():
+                todo += [int(child) for child in (task / "children").read_text().split()]
+        except OSError:
+            continue
+    return tree
+
+
+def _pss_kib(pid: int) -> int:
+    """Proportional set size of a process in KiB (0 if it has ended or cannot be read)."""
+    try:
+        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+            if line.startswith("Pss:"):
+                return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0
 
 
 def peak_memory() -> dict:
