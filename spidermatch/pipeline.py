@@ -48,7 +48,13 @@ from spidermatch.model.ilp import FAMILIES, IlpModel
 from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import ProductGraph, build_product_graph
 from spidermatch.model_size import check_model_fits
-from spidermatch.solve.isolate import POLL_S, can_isolate, solve_isolated
+from spidermatch.solve.isolate import (
+    POLL_S,
+    StartedProcess,
+    can_isolate,
+    solve_isolated,
+    start_solver_process,
+)
 from spidermatch.solve.strategies import LAZY_STRATEGIES, solve_with_strategy, strategy_for
 from spidermatch.solve.types import SolveResult, SolverOptions, finite_or_none
 from spidermatch.validate import check_settings
@@ -497,15 +503,21 @@ def _prepared_and_solved(
 
 
 def _solved(
-    model, graph, curve, settings: MatchSettings, cancel: threading.Event | None = None
+    model,
+    graph,
+    curve,
+    settings: MatchSettings,
+    cancel: threading.Event | None = None,
+    started: StartedProcess | None = None,
 ) -> SolveResult:
     """The solve of a prepared model with ``settings``' strategy (isolated if asked), logged.
 
-    ``cancel``: see :func:`~spidermatch.solve.isolate.solve_isolated` (isolated solves only).
+    ``cancel``, ``started``: see :func:`~spidermatch.solve.isolate.solve_isolated` (isolated
+    solves only).
     """
     solve = partial(solve_with_strategy, settings.strategy)
     if settings.isolate_solver:
-        solved = solve_isolated(solve, model, graph, curve, settings.solver, cancel=cancel)
+        solved = solve_isolated(solve, model, graph, curve, settings.solver, cancel=cancel, started=started)
     else:
         solved = solve(model, graph, curve, settings.solver)
     solved = within_optimal_gap(solved)
@@ -657,20 +669,22 @@ def _solved_with_tours_side_by_side(
 
 
 def _solved_at_once(prepared: list[tuple], tried: list[MatchSettings]) -> list[SolveResult]:
-    """Each prepared tour solved in a thread of its own (watching its solver process).
+    """Each prepared tour solved in a solver process of its own, all at once.
 
-    Once one is settled (:func:`_tour_settled`) the others are stopped.
-
-    A solve that raised counts as failed (status ``"error"``) while another has a result; an
-    interrupt (:class:`~spidermatch.shutdown.RunInterrupted`), or every solve raising, is re-raised.
+    The processes are forked here, on this thread (:func:`~spidermatch.solve.isolate.start_solver_process`),
+    then each is watched by a thread of its own; once one is settled (:func:`_tour_settled`)
+    the others are stopped. A solve that raised counts as failed (status ``"error"``) while
+    another has a result; an interrupt (:class:`~spidermatch.shutdown.RunInterrupted`), or every
+    solve raising, is re-raised. Whatever stops this thread stops every solver process first.
     """
     cancel = threading.Event()
     outcomes: list = [None] * len(prepared)
+    started = []
 
     def run(k: int) -> None:
         low_x, low_y, curve, graph, model = prepared[k]
         try:
-            outcomes[k] = _solved(model, graph, curve, tried[k], cancel)
+            outcomes[k] = _solved(model, graph, curve, tried[k], cancel, started[k])
         except BaseException as error:  # noqa: BLE001 - handed to the main thread
             outcomes[k] = error
         if isinstance(outcomes[k], SolveResult) and _tour_settled(outcomes[k], tried[k].solver.mip_rel_gap):
@@ -678,11 +692,24 @@ def _solved_at_once(prepared: list[tuple], tried: list[MatchSettings]) -> list[S
 
     workers = [threading.Thread(target=run, args=(k,), name=f"solve-{tour}") for k, tour in enumerate(TOURS)]
     with shutdown.native_call():  # a signal is only recorded here: each worker forwards it to its process
-        for worker in workers:
-            worker.start()
-        for worker in workers:
-            while worker.is_alive():
-                worker.join(POLL_S)
+        try:
+            for (*_, curve, graph, model), settings in zip(prepared, tried):
+                solve = partial(solve_with_strategy, settings.strategy)
+                started.append(start_solver_process(solve, model, graph, curve, settings.solver))
+            for worker in workers:
+                worker.start()
+            for worker in workers:
+                while worker.is_alive():
+                    worker.join(POLL_S)
+        except BaseException:  # e.g. KeyboardInterrupt without spidermatch's handler: no orphan solves
+            cancel.set()
+            for worker in workers:
+                if worker.is_alive():
+                    worker.join()
+            for process in started[sum(worker.ident is not None for worker in workers) :]:
+                process.discard()  # forked, never watched
+            raise
+    shutdown.raise_if_stopped()  # a signal after the solves ended, before the block did
     return _outcomes_or_raise(outcomes, prepared)
 
 
@@ -691,6 +718,12 @@ def _first_tour_limit(limit: float) -> float:
     if not math.isfinite(limit) or (1 - AUTO_TOUR_SHARE) * limit < MIN_SECOND_TOUR_S:
         return limit
     return AUTO_TOUR_SHARE * limit
+
+
+def _incumbent_known(stop: shutdown.RunInterrupted) -> float:
+    """The incumbent objective an interrupted solve knew (inf: none)."""
+    incumbent = (stop.known or {}).get("incumbent_objective")
+    return math.inf if incumbent is None else float(incumbent)
 
 
 def _tour_settled(solved: SolveResult, mip_rel_gap: float) -> bool:
@@ -707,9 +740,13 @@ def _tour_settled(solved: SolveResult, mip_rel_gap: float) -> bool:
 
 def _outcomes_or_raise(outcomes: list, prepared: list[tuple]) -> list[SolveResult]:
     """:func:`_solved_at_once`'s outcomes as results; an exception becomes status "error" or is raised."""
-    for outcome in outcomes:
-        if isinstance(outcome, shutdown.RunInterrupted):
-            raise outcome
+    interrupts = [
+        (k, outcome) for k, outcome in enumerate(outcomes) if isinstance(outcome, shutdown.RunInterrupted)
+    ]
+    if interrupts:  # the figures of the tour with the cheapest incumbent, named
+        k, stop = min(interrupts, key=lambda item: _incumbent_known(item[1]))
+        stop.known = {**stop.known, "curve_tour": TOURS[k]}
+        raise stop
     if all(isinstance(outcome, BaseException) for outcome in outcomes):
         raise outcomes[0]
     results = []

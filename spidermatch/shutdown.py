@@ -46,6 +46,16 @@ SIGNAL_EXIT_CODES = {signal.SIGINT: 130, signal.SIGTERM: 143}
 _NATIVE_LOCK = threading.Lock()  # native_call's counter, entered by the threads that watch solver processes
 
 
+def _fresh_native_lock() -> None:
+    """In a forked child: a lock of its own (another thread of the parent may have held it at the fork)."""
+    global _NATIVE_LOCK
+    _NATIVE_LOCK = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_fresh_native_lock)
+
+
 class RunInterrupted(BaseException):
     """SIGINT or SIGTERM ended the run (a BaseException, like KeyboardInterrupt).
 

@@ -70,6 +70,9 @@ def solver_problems(solver, strategies, prefix: str = "solver.") -> list[str]:
         problems.append(
             f"{prefix}strategy={show(solver.get('strategy'))}: choose from {', '.join(strategies)}"
         )
+    share = solver.get("memory_share", 1.0)
+    if not is_number(share) or not 0 < share <= 1:
+        problems.append(f"{prefix}memory_share={show(share)}: must be a number > 0 and <= 1")
     for flag in ("log", "isolate"):
         if not isinstance(solver.get(flag, False), bool):
             problems.append(f"{prefix}{flag}={show(solver.get(flag))}: must be true or false")

@@ -268,6 +268,25 @@ def test_two_solves_side_by_side_count_on_half_the_free_memory_each(monkeypatch)
     assert _room(replace(EXACT, memory_share=0.5)) == free // 4  # the process's own cap, not halved
 
 
+def test_a_memory_share_outside_zero_to_one_is_refused_by_name():
+    from spidermatch.validate import solver_problems
+
+    for share in (0, 1.5, float("nan"), "half"):
+        problems = solver_problems(
+            {
+                "time_limit": 1.0,
+                "mip_rel_gap": 0.0,
+                "threads": 0,
+                "presolve": "choose",
+                "strategy": "colgen",
+                "memory_share": share,
+            },
+            ["colgen"],
+            "",
+        )
+        assert [p for p in problems if "memory_share=" in p and "> 0 and <= 1" in p], share
+
+
 def test_a_further_step_needs_five_seconds_and_five_percent_of_the_limit():
     from spidermatch.solve.colgen import too_little_time_for_a_step
 

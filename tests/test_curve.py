@@ -7,6 +7,7 @@ import pytest
 from spidermatch.data.synthetic import make_creature
 from spidermatch.geometry.remesh import decimate
 from spidermatch.model.curve import (
+    TOURS,
     CurveError,
     SpiderCurve,
     check_curve,
@@ -353,14 +354,28 @@ def test_auto_tour_side_by_side_stops_both_solver_processes_on_a_signal(monkeypa
 
     monkeypatch.setattr(pipeline, "solve_with_strategy", solve)
 
+    returned = threading.Event()
+
     def signal_once_both_solve():
         while len(prepared) < 2:
             time.sleep(0.05)
         time.sleep(1.0)
-        os.kill(os.getpid(), signal.SIGTERM)
+        if not returned.is_set():  # never at pytest itself once the match is over
+            os.kill(os.getpid(), signal.SIGTERM)
 
+    before = set(_children_of_this_process())  # another test's, if any
     threading.Thread(target=signal_once_both_solve, daemon=True).start()
     # at the limit both processes would be killed and the run would end without an interrupt
-    with shutdown.signals_handled(), pytest.raises(shutdown.RunInterrupted) as stopped:
-        pipeline.match(*_tour_pair(), _isolated_auto_settings(60.0))
-    assert stopped.value.signum == signal.SIGTERM
+    try:
+        with shutdown.signals_handled(), pytest.raises(shutdown.RunInterrupted) as stopped:
+            pipeline.match(*_tour_pair(), _isolated_auto_settings(60.0))
+    finally:
+        returned.set()
+    assert stopped.value.signum == signal.SIGTERM and stopped.value.known["curve_tour"] in TOURS
+    assert set(_children_of_this_process()) <= before  # both solver processes ended and reaped
+
+
+def _children_of_this_process() -> list[int]:
+    from test_isolate import children_of_this_process
+
+    return children_of_this_process()

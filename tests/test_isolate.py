@@ -4,6 +4,7 @@ import math
 import os
 import signal
 import time
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -406,3 +407,30 @@ def test_a_run_without_a_solution_names_the_remedy_for_its_stop(message, remedy)
     result = MatchResult(None, None, None, SimpleNamespace(n_layers=10, n_target=20), solved)
     with pytest.raises(NoSolutionError, match=remedy):
         result.raise_for_status()
+
+
+def children_of_this_process() -> list[int]:
+    """Pids of this process's children, alive or not yet reaped (Linux ``/proc``)."""
+    tasks = Path(f"/proc/{os.getpid()}/task")
+    return [int(pid) for task in tasks.iterdir() for pid in (task / "children").read_text().split()]
+
+
+def test_a_cancelled_solve_forks_nothing_or_stops_its_process_and_keeps_the_path_reported():
+    import threading
+
+    options, cancel = SolverOptions(time_limit=60.0), threading.Event()
+    before = set(children_of_this_process())  # another test's, if any
+    cancel.set()
+    solved = solve_isolated(hanging_after_a_path, MODEL, None, None, options, cancel=cancel)
+    assert solved.status == "no_solution" and isolate.CANCELLED in solved.message
+    assert set(children_of_this_process()) <= before  # nothing forked
+    started = isolate.start_solver_process(hanging_after_a_path, MODEL, None, None, options)
+    solved = solve_isolated(hanging_after_a_path, MODEL, None, None, options, cancel=cancel, started=started)
+    assert isolate.CANCELLED in solved.message  # forked, then no longer wanted: killed and reaped
+    assert started.child.exitcode is not None and set(children_of_this_process()) <= before
+    cancel.clear()
+    threading.Timer(1.0, cancel.set).start()  # while the child hangs after reporting a path
+    solved = solve_isolated(hanging_after_a_path, MODEL, None, None, options, cancel=cancel)
+    assert solved.status == "feasible" and solved.objective == 2.0 and solved.bound == 1.5
+    assert np.flatnonzero(solved.x).tolist() == [1, 4] and isolate.CANCELLED in solved.message
+    assert set(children_of_this_process()) <= before

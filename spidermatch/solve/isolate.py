@@ -184,6 +184,44 @@ class ForkedChild:
             self.exitcode = os.waitstatus_to_exitcode(status)
 
 
+class StartedProcess:
+    """A solver process forked by :func:`start_solver_process`, not yet watched.
+
+    Attributes
+    ----------
+    child : ForkedChild
+    receiver : multiprocessing.connection.Connection
+        The parent's end of the child's pipe.
+    start : float
+        ``time.perf_counter()`` when it was forked; its time limit counts from here.
+
+    """
+
+    def __init__(self, child: ForkedChild, receiver, start: float) -> None:
+        self.child, self.receiver, self.start = child, receiver, start
+
+    def discard(self) -> None:
+        """Kill the child, reap it and close the pipe (a process that will not be watched)."""
+        self.receiver.close()
+        self.child.kill()
+        self.child.join()
+
+
+def start_solver_process(solve, model, graph, curve, options: SolverOptions) -> StartedProcess:
+    """Fork a solver process running ``solve(model, graph, curve, options)`` (then :func:`solve_isolated`).
+
+    Forking while another thread of this process runs can leave a lock (a stream's, a
+    logger's) held for ever in the child, so a caller that watches several solver processes
+    from threads forks them all here, on its own thread, first (``curve_tour="auto"``).
+    """
+    receiver, sender = multiprocessing.Pipe(duplex=False)
+    start = time.perf_counter()
+    child = ForkedChild(_child_main, (receiver, sender, solve, model, graph, curve, options))
+    sender.close()
+    logger.info("solver process %d started", child.pid)
+    return StartedProcess(child, receiver, start)
+
+
 def solve_isolated(
     solve,
     model,
@@ -192,6 +230,7 @@ def solve_isolated(
     options: SolverOptions,
     reserve_repair: bool = True,
     cancel: threading.Event | None = None,
+    started: StartedProcess | None = None,
 ) -> SolveResult:
     """``solve(model, graph, curve, options)`` in a forked solver process.
 
@@ -212,7 +251,10 @@ def solve_isolated(
         Set by another thread when this solve is no longer wanted (a solve of another curve
         beside it was certified: ``curve_tour="auto"``); the child is then killed and the
         result is the best closed path it reported, with :data:`CANCELLED` in its message. No
-        repair or retry follows a cancelled solve.
+        repair or retry starts once it is set, and those under way are stopped the same way.
+    started : StartedProcess, optional
+        The solver process of this solve, already forked by :func:`start_solver_process`
+        (the same arguments); by default it is forked here.
 
     Returns
     -------
@@ -229,32 +271,38 @@ def solve_isolated(
     if not can_isolate():
         logger.info("solving in this process: this platform cannot fork the solver process")
         return solve(model, graph, curve, options)
-    receiver, sender = multiprocessing.Pipe(duplex=False)
-    start = time.perf_counter()
-    child = ForkedChild(_child_main, (receiver, sender, solve, model, graph, curve, options))
-    sender.close()
-    logger.info("solver process %d started", child.pid)
-    repair_at = math.inf
-    if cancel is not None and cancel.is_set():
+    if is_cancelled(cancel):
+        if started is not None:
+            started.discard()
         logger.info("not solving: %s", CANCELLED)
         return _overran(ChildReports(), model, 0.0, options, CANCELLED)
+    started = started or start_solver_process(solve, model, graph, curve, options)
+    child, receiver, start = started.child, started.receiver, started.start
+    repair_at = math.inf
     if reserve_repair and isinstance(model, LazyModel) and math.isfinite(options.time_limit):
         repair_at = start + options.time_limit - parent_reserve(options.time_limit)
     try:
         result, reports = _watch(child, receiver, model, start, options, repair_at, cancel)
         if result is None:  # stopped at repair_at for the repair
-            result = _repaired_in_reserve(reports, model, graph, curve, start, options)
+            result = _repaired_in_reserve(reports, model, graph, curve, start, options, cancel)
     finally:
         receiver.close()
         if child.is_alive():
             child.kill()
         child.join()
-    if reports.died:
-        return _retried_after_death(solve, model, graph, curve, options, start, result, reports)
+    if reports.died and not is_cancelled(cancel):
+        return _retried_after_death(solve, model, graph, curve, options, start, result, reports, cancel)
     return result
 
 
-def _retried_after_death(solve, model, graph, curve, options, start: float, failed: SolveResult, reports):
+def is_cancelled(cancel: threading.Event | None) -> bool:
+    """Whether a solve's ``cancel`` event (None: none) is set."""
+    return cancel is not None and cancel.is_set()
+
+
+def _retried_after_death(
+    solve, model, graph, curve, options, start: float, failed: SolveResult, reports, cancel=None
+):
     """After the solver process died: the solve again in a fresh one, HiGHS on one thread, heuristics off.
 
     The HiGHS aborts seen (docs/solver_failures.md) were inside a primal heuristic, which only
@@ -278,11 +326,14 @@ def _retried_after_death(solve, model, graph, curve, options, start: float, fail
         f"{left:.0f} s" if math.isfinite(left) else "no time limit",
     )
     retry_options = replace(options, threads=RETRY_THREADS, extra={**options.extra, **RETRY_OPTIONS})
-    _repaired_after_death(reports, model, graph, curve, retry_options, left)
+    _repaired_after_death(reports, model, graph, curve, retry_options, left, cancel)
     left = start + options.time_limit - time.perf_counter()
-    if left < RETRY_MIN_S:  # the repair took the time
-        return _kept_after_death(failed, reports, model, options, start, "no time left for a retry")
-    retried = solve_isolated(solve, model, graph, curve, replace(retry_options, time_limit=left))
+    if left < RETRY_MIN_S or is_cancelled(cancel):  # the repair took the time, or no retry is wanted
+        words = CANCELLED if is_cancelled(cancel) else "no time left for a retry"
+        return _kept_after_death(failed, reports, model, options, start, words)
+    retried = solve_isolated(
+        solve, model, graph, curve, replace(retry_options, time_limit=left), cancel=cancel
+    )
     if retried.status == "error":
         return _kept_after_death(
             failed, reports, model, options, start, f"the retry died too ({retried.message})"
@@ -302,7 +353,9 @@ def _kept_after_death(failed: SolveResult, reports, model, options: SolverOption
     return _overran(reports, model, time.perf_counter() - start, options, f"{failed.message}; {words}")
 
 
-def _repaired_after_death(reports, model, graph, curve, options: SolverOptions, left: float) -> None:
+def _repaired_after_death(
+    reports, model, graph, curve, options: SolverOptions, left: float, cancel=None
+) -> None:
     """The dead process's last solution with detached cycles, mended into ``reports.path`` if cheaper.
 
     A restricted MIP's first solutions often have detached cycles; column generation mends
@@ -319,7 +372,7 @@ def _repaired_after_death(reports, model, graph, curve, options: SolverOptions, 
         reports.detached[0],
         budget.time_limit,
     )
-    _mend_detached(reports, model, graph, curve, budget)
+    _mend_detached(reports, model, graph, curve, budget, cancel)
 
 
 def _is_retry(options: SolverOptions) -> bool:
@@ -527,7 +580,9 @@ def _watch(
     return _failure(child.exitcode, reports.known, model, time.perf_counter() - start), reports
 
 
-def _repaired_in_reserve(reports: ChildReports, model, graph, curve, start: float, options) -> SolveResult:
+def _repaired_in_reserve(
+    reports: ChildReports, model, graph, curve, start: float, options, cancel=None
+) -> SolveResult:
     """The result after the child was stopped for a repair: the repaired path if it is cheaper.
 
     The repair runs in a fresh solver process over what is left of ``options.time_limit``;
@@ -546,12 +601,12 @@ def _repaired_in_reserve(reports: ChildReports, model, graph, curve, start: floa
     words = (
         f"stopped inside HiGHS {left:.0f} s before the time limit to repair a solution with detached cycles"
     )
-    mended = _mend_detached(reports, model, graph, curve, replace(options, time_limit=max(left, 0.0)))
+    mended = _mend_detached(reports, model, graph, curve, replace(options, time_limit=max(left, 0.0)), cancel)
     words += " (repaired)" if mended else " (no cheaper closed path found)"
     return _overran(reports, model, time.perf_counter() - start, options, words)
 
 
-def _mend_detached(reports: ChildReports, model, graph, curve, options: SolverOptions) -> bool:
+def _mend_detached(reports: ChildReports, model, graph, curve, options: SolverOptions, cancel=None) -> bool:
     """Whether ``reports.detached``, repaired in a fresh process, gave a cheaper closed path.
 
     The repair runs within ``options``'s time limit; a closed path cheaper than ``reports.path``
@@ -559,7 +614,7 @@ def _mend_detached(reports: ChildReports, model, graph, curve, options: SolverOp
     """
     best = reports.path[0] if reports.path is not None else math.inf
     repair = functools.partial(repair_reported, reports.detached[1])
-    repaired = solve_isolated(repair, model, graph, curve, options, reserve_repair=False)
+    repaired = solve_isolated(repair, model, graph, curve, options, reserve_repair=False, cancel=cancel)
     if repaired.x is None or repaired.objective >= best:
         logger.warning("the repair found no cheaper closed path (%s)", repaired.message)
         return False
