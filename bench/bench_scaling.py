@@ -137,9 +137,12 @@ class TreeMemorySampler:
     which counts a page shared after ``fork`` once in all, so it is what the process tree held
     at that moment; with two solver processes side by side (``curve.tour=auto``) the sum of the
     largest child's and this process's peaks (:func:`peak_memory`) is not. Linux only (0 elsewhere).
+    Reading ``smaps_rollup`` walks a process's pages (about 45 ms for 3 GiB), so it samples
+    every ``every_s`` seconds: a restricted MIP holds its peak far longer, and the solvers keep
+    their cores.
     """
 
-    def __init__(self, every_s: float = 0.5) -> None:
+    def __init__(self, every_s: float = 5.0) -> None:
         import threading
 
         self.peak_kib, self._every_s, self._done = 0, every_s, threading.Event()
