@@ -577,6 +577,36 @@ def test_a_mip_stopped_on_request_with_detached_cycles_keeps_its_bound_and_cuts_
     assert pool.flow_layers and "stopped early" in result.message
 
 
+def test_a_re_solve_stopped_before_its_root_bound_keeps_the_bound_of_the_run_before(monkeypatch):
+    """Cuts only remove solutions with detached cycles: the first run's bound holds for the re-solve."""
+    import math
+
+    from spidermatch.solve.cuts import solve_with_cuts
+    from spidermatch.solve.highs import HighsSession
+    from spidermatch.solve.types import SolveResult
+
+    graph, costs, optimum, detached = square_instance_with_detached_copy()
+    model = build_model(graph, SpiderCurve(np.array([0, 1, 0, 2]), 3), costs)
+    first_bound, runs = float(costs @ optimum) - 0.25, []
+
+    def detached_then_stopped_at_the_root(self):
+        if self.stop_when is None:  # a repair MIP: nothing
+            return SolveResult("no_solution", None, math.inf, -math.inf, math.nan, 0.0, self.n_vars, 0, 0)
+        runs.append(len(runs))
+        if len(runs) == 1:  # optimal over its rows, with a detached 2-cycle
+            return SolveResult(
+                "optimal", detached, float(costs @ detached), first_bound, 0.0, 0.0, self.n_vars, 0, 0
+            )
+        value = float(costs @ optimum)  # the re-solve, stopped before its root bound
+        return SolveResult("feasible", optimum, value, -math.inf, math.nan, 0.0, self.n_vars, 0, 0, "stopped")
+
+    monkeypatch.setattr(HighsSession, "run", detached_then_stopped_at_the_root)
+    result = solve_with_cuts(model, graph, SolverOptions(), stop_when=lambda *_: False)
+    assert len(runs) == 2 and result.cut_rounds == 1 and np.array_equal(result.x, optimum)
+    assert result.bound == pytest.approx(first_bound)  # not -inf
+    assert result.gap == pytest.approx(0.25 / (costs @ optimum))
+
+
 def test_stop_when_judges_the_cheapest_closed_path_not_an_incumbent_with_detached_cycles():
     from types import SimpleNamespace
 

@@ -197,6 +197,7 @@ def solve_with_cuts(
     if incumbent is not None:
         offer_start_path(session, flows, incumbent if columns is None else incumbent[columns])
     result = session.run()
+    best_bound = result.bound
     rounds = 0
     # connectivity cuts are valid for closed paths, which only flow conservation (CON) makes
     max_rounds = MAX_CUT_ROUNDS if imposes_paths(sub) else 0
@@ -211,6 +212,7 @@ def solve_with_cuts(
         pool.add(rows, lower, upper)  # for this session's next run and for later solves
         affected = pool.note_detached(graph, components)
         pool.note_detached_solution(used, result.objective, affected)
+        result = with_best_bound(result, best_bound)
         left = remaining(options, start)
         if left.time_limit <= 0:
             return _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds)
@@ -242,8 +244,25 @@ def solve_with_cuts(
             logger.info("restarting from the best closed path known, %.6g", sub.costs @ restart_sub)
             offer_start_path(session, flows, restart_sub)
         result = session.run()  # the session gives each run only the time left
+        best_bound = max(best_bound, result.bound)
+    result = with_best_bound(result, best_bound)
     x = expand(result.x, columns, n_vars)
     return replace(result, x=x, wall_time=time.perf_counter() - start, cut_rounds=rounds)
+
+
+def with_best_bound(result: SolveResult, best_bound: float) -> SolveResult:
+    """``result`` with the best bound of every run of a cut loop (its gap recomputed).
+
+    Each run adds rows that only cut off solutions with detached cycles, so an earlier run's
+    bound (over more solutions) still holds for a later one; a later run stopped before its
+    root bound (HiGHS then reports -inf) keeps the earlier one. Never above the objective.
+    """
+    bound = max(result.bound, best_bound)
+    if math.isfinite(result.objective):
+        bound = min(bound, result.objective)
+    if bound == result.bound:
+        return result
+    return replace(result, bound=bound, gap=relative_gap(result.objective, bound))
 
 
 def _leaving_time_to_repair(session: HighsSession, stop_when, options: SolverOptions, start: float):
