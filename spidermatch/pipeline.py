@@ -720,10 +720,10 @@ def _first_tour_limit(limit: float) -> float:
     return AUTO_TOUR_SHARE * limit
 
 
-def _incumbent_known(stop: shutdown.RunInterrupted) -> float:
-    """The incumbent objective an interrupted solve knew (inf: none)."""
-    incumbent = (stop.known or {}).get("incumbent_objective")
-    return math.inf if incumbent is None else float(incumbent)
+def _gap_known(stop: shutdown.RunInterrupted) -> float:
+    """The relative gap an interrupted solve knew (inf: none)."""
+    gap = (stop.known or {}).get("gap")
+    return math.inf if gap is None else float(gap)
 
 
 def _tour_settled(solved: SolveResult, mip_rel_gap: float) -> bool:
@@ -743,8 +743,8 @@ def _outcomes_or_raise(outcomes: list, prepared: list[tuple]) -> list[SolveResul
     interrupts = [
         (k, outcome) for k, outcome in enumerate(outcomes) if isinstance(outcome, shutdown.RunInterrupted)
     ]
-    if interrupts:  # the figures of the tour with the cheapest incumbent, named
-        k, stop = min(interrupts, key=lambda item: _incumbent_known(item[1]))
+    if interrupts:  # the figures of the tour nearest to certified (two problems: gaps, not costs), named
+        k, stop = min(interrupts, key=lambda item: _gap_known(item[1]))
         stop.known = {**stop.known, "curve_tour": TOURS[k]}
         raise stop
     if all(isinstance(outcome, BaseException) for outcome in outcomes):
