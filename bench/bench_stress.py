@@ -148,12 +148,20 @@ def checked_row(run: dict, row: dict, run_dir: Path, time_limit: float, grace: f
         "n": run["n"], "kind": run["kind"], "faces": run["faces"], "adapt": run["adapt"], **row,
         "solver_status": result.get("solver_status"), "verdict": (result.get("quality") or {}).get("verdict"),
         "message": (result.get("solver") or {}).get("message") or result.get("error"),
+        "tours": _tours(result.get("curve_tours")),
     }  # fmt: skip
     row["documented_exit"] = row["exit_code"] in DOCUMENTED_EXIT_CODES
     row["final_status"] = row.get("status") in FINAL_STATUSES
     row["within_limit"] = solve_s is None or solve_s <= time_limit + grace
     row["certified"] = row.get("status") == "optimal"
     return row
+
+
+def _tours(records: list[dict] | None) -> str | None:
+    """``curve.tour=auto``: each tour tried as tour:status, the kept one starred (None otherwise)."""
+    if not records:
+        return None
+    return "; ".join(f"{'*' if t['chosen'] else ''}{t['tour']}:{t['status']}" for t in records)
 
 
 def _distribution(values: list[float]) -> dict:

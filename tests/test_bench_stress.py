@@ -1,5 +1,7 @@
 """The stress run's draw and checks (bench/bench_stress.py)."""
 
+import json
+
 from bench_stress import KINDS, Collections, checked_row, draw_runs, summaries_of
 
 
@@ -42,3 +44,16 @@ def test_checks_flag_an_undocumented_exit_an_unfinished_status_and_a_hang(tmp_pa
     assert not row["documented_exit"] and not row["final_status"] and not row["within_limit"]
     summary = summaries_of([row])["all"]
     assert (summary["undocumented_exits"], summary["not_final"], summary["past_limit_and_grace"]) == (1, 1, 1)
+
+
+def test_a_run_with_both_tours_says_which_ended_how_and_which_was_kept(tmp_path):
+    run = {"n": 0, "kind": "humans", "faces": 1000, "adapt": 0}
+    tours = [
+        {"tour": "christofides", "status": "no_solution", "chosen": False},
+        {"tour": "two_opt", "status": "optimal", "chosen": True},
+    ]
+    (tmp_path / "result.json").write_text(json.dumps({"status": "optimal", "curve_tours": tours}))
+    row = checked_row(run, {"exit_code": 0, "status": "optimal"}, tmp_path, 60, 10)
+    assert row["tours"] == "christofides:no_solution; *two_opt:optimal"
+    (tmp_path / "result.json").write_text(json.dumps({"status": "optimal", "curve_tours": None}))
+    assert checked_row(run, {"exit_code": 0, "status": "optimal"}, tmp_path, 60, 10)["tours"] is None
