@@ -515,7 +515,7 @@ def _solved(
     ``cancel``, ``started``: see :func:`~spidermatch.solve.isolate.solve_isolated` (isolated
     solves only).
     """
-    solve = partial(solve_with_strategy, settings.strategy)
+    solve = _solve_function(settings)
     if settings.isolate_solver:
         solved = solve_isolated(solve, model, graph, curve, settings.solver, cancel=cancel, started=started)
     else:
@@ -530,6 +530,11 @@ def _solved(
         solved.gap,
     )
     return solved
+
+
+def _solve_function(settings: MatchSettings):
+    """``solve(model, graph, curve, options)`` with ``settings``' strategy."""
+    return partial(solve_with_strategy, settings.strategy)
 
 
 def _model_size(model) -> dict:
@@ -555,7 +560,8 @@ def _solved_with_tours_in_turn(
     attempt : tuple
         (low_x, low_y, curve, graph, model_size, solved) of the chosen tour.
     tours : list of dict
-        Per tour tried: ``tour``, ``status``, ``objective``, ``bound``, ``gap``, ``solve_s``, ``chosen``.
+        Per tour tried (:func:`_tour_records`): ``tour``, ``status``, ``objective``, ``bound``,
+        ``gap``, ``solve_s``, ``chosen``, ``side_by_side`` (false here) and ``message``.
     """
     limit = settings.solver.time_limit
     first_limit = _first_tour_limit(limit)
@@ -694,7 +700,7 @@ def _solved_at_once(prepared: list[tuple], tried: list[MatchSettings]) -> list[S
     with shutdown.native_call():  # a signal is only recorded here: each worker forwards it to its process
         try:
             for (*_, curve, graph, model), settings in zip(prepared, tried):
-                solve = partial(solve_with_strategy, settings.strategy)
+                solve = _solve_function(settings)
                 started.append(start_solver_process(solve, model, graph, curve, settings.solver))
             for worker in workers:
                 worker.start()

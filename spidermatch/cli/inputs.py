@@ -24,6 +24,7 @@ from spidermatch.geometry.partial import PairKind, announce_pair, original_faces
 from spidermatch.geometry.repair import Repair
 from spidermatch.geometry.weld import Weld
 from spidermatch.model_size import check_meshes_fit
+from spidermatch.pipeline import usable_cores
 from spidermatch.validate import (
     OptionError,
     check_ground_truth,
@@ -221,7 +222,7 @@ def free_cores() -> int:
     Busy cores: the larger of the 1-minute load average and the processes running right now
     besides this one (``/proc/loadavg``; two matches started together see each other only there).
     """
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    cores = usable_cores()
     busy = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
     try:
         running = int(Path("/proc/loadavg").read_text().split()[3].split("/")[0])

@@ -212,7 +212,6 @@ def solve_with_cuts(
         pool.add(rows, lower, upper)  # for this session's next run and for later solves
         affected = pool.note_detached(graph, components)
         pool.note_detached_solution(used, result.objective, affected)
-        result = with_best_bound(result, best_bound)
         left = remaining(options, start)
         if left.time_limit <= 0:
             return _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds)
@@ -245,7 +244,7 @@ def solve_with_cuts(
             offer_start_path(session, flows, restart_sub)
         result = session.run()  # the session gives each run only the time left
         best_bound = max(best_bound, result.bound)
-    result = with_best_bound(result, best_bound)
+        result = with_best_bound(result, best_bound)
     x = expand(result.x, columns, n_vars)
     return replace(result, x=x, wall_time=time.perf_counter() - start, cut_rounds=rounds)
 

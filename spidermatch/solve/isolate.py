@@ -561,17 +561,14 @@ def _watch(
                 _raise_interrupted(shutdown.received_signal(), reports.known)
             if finishing or forwarded_at is not None:
                 continue
-            now = time.perf_counter()
-            if cancel is not None and cancel.is_set():
+            now, cancelled = time.perf_counter(), is_cancelled(cancel)
+            if cancelled or now > kill_at or (now > repair_at and reports.repair_would_help()):
                 child.kill()
                 child.join()
                 reports.drain(receiver)
-                logger.info("solver process %d stopped: %s", child.pid, CANCELLED)
-                return _overran(reports, model, now - start, options, CANCELLED), reports
-            if now > kill_at or (now > repair_at and reports.repair_would_help()):
-                child.kill()
-                child.join()
-                reports.drain(receiver)
+                if cancelled:
+                    logger.info("solver process %d stopped: %s", child.pid, CANCELLED)
+                    return _overran(reports, model, now - start, options, CANCELLED), reports
                 if now > kill_at:
                     return _overran(reports, model, now - start, options), reports
                 return None, reports
