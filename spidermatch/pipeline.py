@@ -98,6 +98,7 @@ def default_solver_options() -> SolverOptions:
         threads=int(solver["threads"]),
         presolve=str(solver["presolve"]),
         log=bool(solver["log"]),
+        flow_rows=str(solver["flow_rows"]),
     )
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 from spidermatch.dense.settings import settings_problems as dense_settings_problems
 from spidermatch.geometry.mesh import Mesh, MeshError
 from spidermatch.model.curve import MATCHINGS, TOUR_SETTINGS
+from spidermatch.solve.types import FLOW_ROWS_VALUES
 from spidermatch.values import is_finite, is_number, is_whole, show
 
 logger = logging.getLogger(__name__)
@@ -65,6 +66,10 @@ def solver_problems(solver, strategies, prefix: str = "solver.") -> list[str]:
     if solver.get("presolve") not in PRESOLVE_VALUES:
         problems.append(
             f"{prefix}presolve={show(solver.get('presolve'))}: choose from {', '.join(PRESOLVE_VALUES)}"
+        )
+    if solver.get("flow_rows", "found") not in FLOW_ROWS_VALUES:
+        problems.append(
+            f"{prefix}flow_rows={show(solver.get('flow_rows'))}: choose from {', '.join(FLOW_ROWS_VALUES)}"
         )
     if solver.get("strategy") not in strategies:
         problems.append(

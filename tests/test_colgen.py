@@ -397,3 +397,22 @@ def test_a_wider_mip_out_of_memory_without_a_solution_keeps_the_last_step_and_sa
     assert len(calls) == 2 and solved.status == "feasible" and "ran out of memory" in solved.message
     assert solved.bound <= plain.objective * (1 + 1e-9) <= solved.objective * (1 + 1e-9)
     assert_one_checked_path(lazy, solved.x)
+
+
+@pytest.mark.parametrize("strategy", ["colgen", "rcfix"])
+@pytest.mark.parametrize("seed", [3, 4])
+def test_flow_rows_in_every_intersection_layer_keep_the_optimum_without_cut_rounds(strategy, seed, caplog):
+    lazy = creature_lazy(24, seed)
+    assert lazy.curve.is_intersection_layer.any()
+    model = lazy if strategy == "colgen" else lazy.full_model()
+    plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
+    options = replace(EXACT, flow_rows="intersections")
+    with caplog.at_level("INFO"):
+        solved = solve_with_strategy(strategy, model, lazy.graph, lazy.curve, options)
+    assert "MIP over" in caplog.text  # the instance needs a MIP (its LP solution is not a path)
+    assert solved.status == "optimal"
+    assert solved.objective == pytest.approx(plain.objective, rel=1e-9)
+    assert_one_checked_path(lazy, solved.x)
+    n_intersections = int(lazy.curve.is_intersection_layer.sum())
+    assert f"in {n_intersections} layers" in caplog.text  # from the first MIP on
+    assert "cut round" not in caplog.text

@@ -32,6 +32,7 @@ def settings_from_config(cfg, resolution: int, feature_name: str) -> MatchSettin
             threads=int(solver.threads),
             presolve=str(solver.presolve),
             log=bool(solver.log),
+            flow_rows=str(solver.get("flow_rows", "found")),
         ),
         strategy=strategy_for(str(solver.strategy), feature_name),
         isolate_solver=bool(solver.get("isolate", True)),

@@ -67,7 +67,7 @@ from spidermatch.model.product_graph import ProductGraph
 from spidermatch.model.solution import LP_SUPPORT, used_columns
 from spidermatch.shutdown import RunInterrupted
 from spidermatch.solve.connectivity import detached_components
-from spidermatch.solve.cuts import CutPool, solve_with_cuts
+from spidermatch.solve.cuts import cut_pool, solve_with_cuts
 from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import LP_EXTRA, HighsSession
 from spidermatch.solve.pricing import Pricing, price, up_to, with_path_reduced_costs
@@ -548,7 +548,8 @@ def solve_column_generation(
         "colgen LP: %d of %d columns in %d rounds, bound %.8g (%.1f s)",
         lp.columns.size, lazy.n_vars, lp.rounds, lp.bound, time.perf_counter() - start,
     )  # fmt: skip
-    pool, layers = CutPool(first_layer=curve.first_layer), np.flatnonzero(curve.is_intersection_layer)
+    layers = np.flatnonzero(curve.is_intersection_layer)
+    pool = cut_pool(curve.first_layer, layers, options)
     built = [lp.columns]
     result = certify_by_steps(lazy, lp, options, start, pool, layers, built)
     return replace(

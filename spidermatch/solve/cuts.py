@@ -101,6 +101,24 @@ class CutPool:
         return rows.shape[0]
 
 
+def cut_pool(first_layer: np.ndarray, intersection_layers: np.ndarray, options: SolverOptions) -> CutPool:
+    """An empty pool for the solves over one SpiderCurve, its flow layers as ``options.flow_rows`` says.
+
+    Parameters
+    ----------
+    first_layer : np.ndarray, shape (L,)
+        The curve's first layer of each layer's source vertex (ties the layers of one vertex).
+    intersection_layers : np.ndarray, shape (k,)
+        The curve's self-intersection layers: where a detached cycle can pay (PES), so where
+        ``flow_rows="intersections"`` puts flow rows from the first MIP on.
+    options : SolverOptions
+    """
+    pool = CutPool(first_layer=first_layer)
+    if options.flow_rows == "intersections":
+        pool.flow_layers |= {int(layer) for layer in intersection_layers}
+    return pool
+
+
 def expand(x_sub: np.ndarray | None, columns: np.ndarray | None, n_vars: int) -> np.ndarray | None:
     """A sub-model solution (k,) as a full-model vector (n,), zeros elsewhere.
 

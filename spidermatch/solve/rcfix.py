@@ -24,7 +24,7 @@ from spidermatch.model.ilp import IlpModel
 from spidermatch.model.product_graph import ProductGraph
 from spidermatch.model.solution import LP_SUPPORT, used_columns
 from spidermatch.shutdown import RunInterrupted
-from spidermatch.solve.cuts import CutPool, imposes_paths, solve_with_cuts
+from spidermatch.solve.cuts import cut_pool, imposes_paths, solve_with_cuts
 from spidermatch.solve.fixing import DualBound, dual_bound
 from spidermatch.solve.highs import LP_EXTRA, HighsSession
 from spidermatch.solve.progress import report_known
@@ -120,8 +120,8 @@ def solve_reduced_cost_fixing(
             model.n_vars, model.n_rows, model.nnz, "LP relaxation infeasible",
         )  # fmt: skip
     report_known(bound=lp.dual.bound)
-    pool = CutPool(first_layer=curve.first_layer)
     intersection_layers = np.flatnonzero(curve.is_intersection_layer)
+    pool = cut_pool(curve.first_layer, intersection_layers, options)
     columns = seed_columns(lp, 1.0)
     incumbent, result, scale, certified = None, None, 1.0, False
     for phase in range(1, MAX_PHASES + 1):

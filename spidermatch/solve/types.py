@@ -40,6 +40,11 @@ class SolverOptions:
         Share of the machine's free memory that this solve may count on before it starts a
         large restricted MIP (0.5 for each of two solves side by side;
         :func:`spidermatch.memory.available_memory`).
+    flow_rows : str
+        Where the restricted MIPs of ``colgen`` and ``rcfix`` get the flow rows that keep the
+        path in one piece (:mod:`spidermatch.solve.layer_flow`): "found", in the layers where a
+        solution showed a detached cycle (then re-solved); "intersections", in every
+        self-intersection layer of the SpiderCurve from the first MIP on.
 
     """
 
@@ -50,6 +55,11 @@ class SolverOptions:
     log: bool = False
     extra: dict = field(default_factory=dict)
     memory_share: float = 1.0
+    flow_rows: str = "found"
+
+
+FLOW_ROWS_VALUES = ("found", "intersections")
+"""Values of :attr:`SolverOptions.flow_rows`."""
 
 
 OUT_OF_MEMORY = "Memory limit reached"
