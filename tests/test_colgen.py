@@ -416,3 +416,32 @@ def test_flow_rows_in_every_intersection_layer_keep_the_optimum_without_cut_roun
     n_intersections = int(lazy.curve.is_intersection_layer.sum())
     assert f"in {n_intersections} layers" in caplog.text  # from the first MIP on
     assert "cut round" not in caplog.text
+
+
+def test_a_wider_mip_that_proves_less_keeps_the_bound_of_the_step_before(monkeypatch, caplog):
+    """Step 1 proves a bound for the full model, step 2 (wider) is stopped with a weaker MIP bound: the
+    answer keeps step 1's (each step's bound holds for the full model)."""
+    import math
+    import re
+
+    import spidermatch.solve.colgen as colgen
+    from spidermatch.solve.types import SolveResult
+
+    lazy = creature_lazy(24, 3)
+    plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
+    calls = []
+
+    def weaker_each_step(lazy, columns, options, incumbent, *rest):
+        calls.append(columns.size)
+        start = float(lazy.costs(np.flatnonzero(incumbent > 0.5)).sum())
+        bound = plain.objective * (0.9999 if len(calls) == 1 else 0.5)  # both valid, the second weaker
+        return SolveResult("feasible", incumbent, start, bound, math.nan, 0.0, columns.size, 1, 1, "stopped")
+
+    monkeypatch.setattr(colgen, "_restricted_mip", weaker_each_step)
+    monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)
+    monkeypatch.setattr(colgen, "MAX_STEPS", 2)
+    with caplog.at_level("INFO", logger="spidermatch.solve.colgen"):
+        solved = solve_with_strategy("colgen", lazy, lazy.graph, lazy.curve, EXACT)
+    first = float(re.search(r"colgen step 1: .* bound for the full model (\S+)", caplog.text).group(1))
+    assert len(calls) == 2 and solved.status == "feasible"
+    assert solved.bound == pytest.approx(first, rel=1e-7) and solved.bound <= plain.objective * (1 + 1e-9)

@@ -343,8 +343,9 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
             if result.out_of_memory and best is not None:  # keep the last step's, and say why
                 return replace(best, status="feasible", message=_out_of_memory(columns))
             break  # time limit before a solution of this step: keep the last one
-        # both are valid lower bounds for the full model (L(y) alone may already be close enough)
-        bound = max(lp.bound, min(result.bound, outside))
+        # both are valid lower bounds for the full model (L(y) alone may already be close enough),
+        # and so is an earlier step's: a wider MIP stopped early can prove less than a narrower one did
+        bound = max(lp.bound, min(result.bound, outside), best.bound if best is not None else -math.inf)
         proven_here = result.status == "optimal" and outside >= result.bound  # the MIP's proof covers all
         certified = proven_here or relative_gap(result.objective, bound) <= options.mip_rel_gap
         if not certified:  # a cheaper solution cut off for detached cycles: re-route it
