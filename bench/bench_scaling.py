@@ -47,6 +47,7 @@ def run_instance(task: tuple) -> dict:
     highs = rest[0] if rest else {}  # extra HiGHS options for every solve (bench_solve.py --highs)
     tour = rest[1] if len(rest) > 1 else "christofides"
     curve_seed = rest[2] if len(rest) > 2 else 0
+    flow_rows = rest[3] if len(rest) > 3 else "found"
     if log_dir:  # the solver's INFO log of this instance, one file per instance
         import logging
 
@@ -67,7 +68,7 @@ def run_instance(task: tuple) -> dict:
         curve_matching=matching,
         curve_tour=tour,
         curve_seed=curve_seed,
-        solver=SolverOptions(time_limit=time_limit, extra=highs),
+        solver=SolverOptions(time_limit=time_limit, extra=highs, flow_rows=flow_rows),
     )
     try:
         result = match(x.mesh, y.mesh, feat_x, feat_y, settings)
@@ -86,6 +87,7 @@ def run_instance(task: tuple) -> dict:
         "curve_matching": matching,
         "curve_tour": tour,
         "curve_seed": curve_seed,
+        "flow_rows": flow_rows,
         "adapt_steps": adapt_steps,
         "status": solved.status,
         "columns_built": _columns_built(strategy, solved, result.graph.n_edges),
@@ -247,6 +249,9 @@ def main(argv: list[str] | None = None) -> None:
         "--curve-seeds", nargs="+", type=int, default=[0], help="SpiderCurve start-vertex seeds, one run each"
     )
     parser.add_argument("--time-limit", type=float, default=600.0, help="seconds per solve")
+    parser.add_argument(
+        "--flow-rows", default="found", choices=("found", "intersections"), help="solver.flow_rows"
+    )
     parser.add_argument("--full-model-columns", type=float, default=2.0e7)
     parser.add_argument("--out", default="bench/results/solver_scaling_faust_val.json")
     parser.add_argument("--log-dir", default=None, help="write each instance's INFO log to this folder")
@@ -270,7 +275,7 @@ def main(argv: list[str] | None = None) -> None:
                     task = (args.data, pair, faces, strategy, *features)
                     start = time.perf_counter()
                     with context.Pool(1) as pool:
-                        curve = (args.curve_tour, curve_seed)
+                        curve = (args.curve_tour, curve_seed, args.flow_rows)
                         extra = (args.time_limit, args.curve_matching, args.log_dir, {}, *curve)
                         row = pool.apply(run_instance, (task + extra,))
                     row["process_s"] = round(time.perf_counter() - start, 1)

@@ -124,6 +124,22 @@ def test_a_detached_cycle_puts_its_layer_and_the_layers_of_its_source_vertex_und
     assert covered == expected
 
 
+@pytest.mark.parametrize("flow_rows", ["found", "intersections"])
+def test_flow_rows_setting_decides_which_layers_get_flow_rows_before_and_after_a_detached_cycle(flow_rows):
+    from spidermatch.solve.cuts import cut_pool
+
+    graph, _, _, detached = square_instance_with_detached_copy()
+    components = detached_components(graph, detached)
+    own = {int(components[0][0] // graph.n_target)}
+    others = {layer for layer in range(graph.n_layers) if layer not in own}
+    intersections = np.array(sorted(own | {min(others)}))  # the cycle's layer and one more
+    first_layer = np.arange(graph.n_layers)  # no two layers share a source vertex here
+    pool = cut_pool(first_layer, intersections, SolverOptions(flow_rows=flow_rows))
+    assert pool.flow_layers == (set(intersections.tolist()) if flow_rows == "intersections" else set())
+    assert pool.note_detached(graph, components) == own  # what the repair frees: the cycle's layer only
+    assert pool.flow_layers == (own if flow_rows == "found" else set(intersections.tolist()))
+
+
 def test_a_start_with_a_detached_cycle_is_not_offered_once_flow_rows_exist(caplog):
     from spidermatch.solve.cuts import offer_start_path
     from spidermatch.solve.highs import HighsSession
