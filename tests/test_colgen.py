@@ -1,3 +1,4 @@
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -14,7 +15,7 @@ from spidermatch.solve.plain import solve_plain
 from spidermatch.solve.pricing import price
 from spidermatch.solve.seeds import SEED_NEIGHBOURS, stay_seed
 from spidermatch.solve.strategies import solve_with_strategy
-from spidermatch.solve.types import OUT_OF_MEMORY, SolverOptions
+from spidermatch.solve.types import OUT_OF_MEMORY, SolveResult, SolverOptions
 from tests.test_ilp import TRIANGLE, brute_force
 
 EXACT = SolverOptions(mip_rel_gap=0.0)
@@ -41,6 +42,12 @@ def creature_lazy(faces, seed):
     graph = build_product_graph(curve.length, target.n_verts, target.edges)
     vertex_costs = np.random.default_rng(seed).uniform(0.0, 1.0, (source.n_verts, target.n_verts))
     return LazyModel(graph, curve, source.verts, target.verts, vertex_costs)
+
+
+def stopped_at_start(lazy, columns, incumbent, bound=-math.inf, message="stopped"):
+    """A restricted MIP stopped at once: "feasible" with its start solution (and its cost) and ``bound``."""
+    start = float(lazy.costs(np.flatnonzero(incumbent > 0.5)).sum())
+    return SolveResult("feasible", incumbent, start, bound, math.nan, 0.0, columns.size, 1, 1, message)
 
 
 def assert_one_checked_path(lazy, x):
@@ -163,10 +170,8 @@ def test_both_certificates_equal_brute_force(seed, route, monkeypatch):
 
 def test_a_mip_stopped_above_its_outside_bound_widens_and_still_certifies_the_optimum(monkeypatch, caplog):
     """The first MIP stops at once with its start solution (as stop_when does): step 2 certifies."""
-    import math
 
     import spidermatch.solve.colgen as colgen
-    from spidermatch.solve.types import SolveResult
 
     lazy = creature_lazy(24, 3)
     plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
@@ -176,10 +181,7 @@ def test_a_mip_stopped_above_its_outside_bound_widens_and_still_certifies_the_op
         calls.append(columns.size)
         if len(calls) > 1:
             return original(lazy, columns, options, incumbent, *rest)
-        start = float(lazy.costs(np.flatnonzero(incumbent > 0.5)).sum())  # what HiGHS reports when stopped
-        return SolveResult(
-            "feasible", incumbent, start, -math.inf, math.nan, 0.0, columns.size, 1, 1, "stopped"
-        )
+        return stopped_at_start(lazy, columns, incumbent)  # what HiGHS reports when stopped at once
 
     monkeypatch.setattr(colgen, "_restricted_mip", first_stopped)
     monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)  # no LP shortcut: the MIPs run
@@ -201,10 +203,8 @@ def test_no_wider_mip_starts_after_one_stopped_for_time_or_memory_and_the_answer
 ):
     """As above, but with too little time for step 2, or HiGHS out of memory in step 1 (a wider MIP
     would need more): the incumbent, a valid bound, `feasible`, and why."""
-    import math
 
     import spidermatch.solve.colgen as colgen
-    from spidermatch.solve.types import SolveResult
 
     lazy = creature_lazy(24, 3)
     plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
@@ -212,10 +212,7 @@ def test_no_wider_mip_starts_after_one_stopped_for_time_or_memory_and_the_answer
 
     def first_stopped(lazy, columns, options, incumbent, *rest):
         calls.append(columns.size)
-        start = float(lazy.costs(np.flatnonzero(incumbent > 0.5)).sum())
-        return SolveResult(
-            "feasible", incumbent, start, -math.inf, math.nan, 0.0, columns.size, 1, 1, message
-        )
+        return stopped_at_start(lazy, columns, incumbent, message=message)
 
     monkeypatch.setattr(colgen, "_restricted_mip", first_stopped)
     monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)
@@ -421,11 +418,9 @@ def test_flow_rows_in_every_intersection_layer_keep_the_optimum_without_cut_roun
 def test_a_wider_mip_that_proves_less_keeps_the_bound_of_the_step_before(monkeypatch, caplog):
     """Step 1 proves a bound for the full model, step 2 (wider) is stopped with a weaker MIP bound: the
     answer keeps step 1's (each step's bound holds for the full model)."""
-    import math
     import re
 
     import spidermatch.solve.colgen as colgen
-    from spidermatch.solve.types import SolveResult
 
     lazy = creature_lazy(24, 3)
     plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
@@ -433,9 +428,8 @@ def test_a_wider_mip_that_proves_less_keeps_the_bound_of_the_step_before(monkeyp
 
     def weaker_each_step(lazy, columns, options, incumbent, *rest):
         calls.append(columns.size)
-        start = float(lazy.costs(np.flatnonzero(incumbent > 0.5)).sum())
         bound = plain.objective * (0.9999 if len(calls) == 1 else 0.5)  # both valid, the second weaker
-        return SolveResult("feasible", incumbent, start, bound, math.nan, 0.0, columns.size, 1, 1, "stopped")
+        return stopped_at_start(lazy, columns, incumbent, bound)
 
     monkeypatch.setattr(colgen, "_restricted_mip", weaker_each_step)
     monkeypatch.setattr(colgen, "_lp_incumbent", lambda lazy, lp: None)
