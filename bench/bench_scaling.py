@@ -30,6 +30,8 @@ from pathlib import Path
 
 from feature_options import add_feature_options, load_pair_with_features, parse_checked
 
+from spidermatch.solve.types import FLOW_ROWS_VALUES
+
 VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
 STAGES = ("features", "decimate", "curve", "costs", "build", "solve", "check")
 COLUMNS = (
@@ -249,9 +251,7 @@ def main(argv: list[str] | None = None) -> None:
         "--curve-seeds", nargs="+", type=int, default=[0], help="SpiderCurve start-vertex seeds, one run each"
     )
     parser.add_argument("--time-limit", type=float, default=600.0, help="seconds per solve")
-    parser.add_argument(
-        "--flow-rows", default="found", choices=("found", "intersections"), help="solver.flow_rows"
-    )
+    parser.add_argument("--flow-rows", default="found", choices=FLOW_ROWS_VALUES, help="solver.flow_rows")
     parser.add_argument("--full-model-columns", type=float, default=2.0e7)
     parser.add_argument("--out", default="bench/results/solver_scaling_faust_val.json")
     parser.add_argument("--log-dir", default=None, help="write each instance's INFO log to this folder")
