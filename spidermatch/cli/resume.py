@@ -62,6 +62,8 @@ def deciding_settings(config: dict, checkpoint: str | None) -> dict:
 
     """
     solver = {k: v for k, v in config["solver"].items() if k not in IGNORED_SOLVER_KEYS}
+    if solver.get("flow_rows") == "found":  # the default, as before the option: stored runs stay reusable
+        solver.pop("flow_rows")
     cap = config.get("features_max_vertices", MAX_FEATURE_VERTICES)
     # only a changed cap enters the hash: runs made before the option existed stay reusable
     changed_cap = {} if cap == MAX_FEATURE_VERTICES else {"features_max_vertices": cap}

@@ -337,7 +337,8 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
                 lazy, columns, remaining(options, start), incumbent, pool, layers, stop_when
             )
         except RunInterrupted as stop:  # its figures hold for the restricted MIP only
-            stop.known.update(interrupted_full_model_figures(stop.known, lp.bound, outside))
+            proven = max(lp.bound, best.bound if best is not None else -math.inf)  # an earlier step's holds
+            stop.known.update(interrupted_full_model_figures(stop.known, proven, outside))
             raise
         if result.x is None:
             if result.out_of_memory and best is not None:  # keep the last step's, and say why
