@@ -19,6 +19,19 @@ from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
 # statuses that are the pair's real outcome (interrupted, output_error, started: run again)
 FINAL_STATUSES = ("optimal", "feasible", "infeasible", "no_solution", "solver_failure", "input_error")
 IGNORED_SOLVER_KEYS = ("log",)  # options that do not change a result
+SOLVER_KEYS_ADDED_LATER = {"flow_rows": "found"}
+"""Solver options added after pair results were stored, each with the value those runs had."""
+
+
+def _without_effect(key: str, value) -> bool:
+    """Whether a solver option stays out of the hash.
+
+    It does when it does not change a result, or when it has the value stored runs had before it
+    existed (so that they stay reusable).
+    """
+    if key in IGNORED_SOLVER_KEYS:
+        return True
+    return key in SOLVER_KEYS_ADDED_LATER and SOLVER_KEYS_ADDED_LATER[key] == value
 
 
 def file_identity(path: str | os.PathLike | None) -> dict | None:
@@ -61,9 +74,7 @@ def deciding_settings(config: dict, checkpoint: str | None) -> dict:
         The features' checkpoint file: its content hash stands for it.
 
     """
-    solver = {k: v for k, v in config["solver"].items() if k not in IGNORED_SOLVER_KEYS}
-    if solver.get("flow_rows") == "found":  # the default, as before the option: stored runs stay reusable
-        solver.pop("flow_rows")
+    solver = {k: v for k, v in config["solver"].items() if not _without_effect(k, v)}
     cap = config.get("features_max_vertices", MAX_FEATURE_VERTICES)
     # only a changed cap enters the hash: runs made before the option existed stay reusable
     changed_cap = {} if cap == MAX_FEATURE_VERTICES else {"features_max_vertices": cap}

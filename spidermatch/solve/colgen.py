@@ -332,21 +332,21 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         built.append(columns)
         outside = lp.bound + max(selection.min_outside, 0.0)
         stop_when = futile_mip_stop(outside, lp.bound + JUMP * threshold, options.mip_rel_gap)
+        proven = lp.bound if best is None else best.bound  # an earlier step's bound (>= L) still holds
         try:
             result = _restricted_mip(
                 lazy, columns, remaining(options, start), incumbent, pool, layers, stop_when
             )
         except RunInterrupted as stop:  # its figures hold for the restricted MIP only
-            proven = max(lp.bound, best.bound if best is not None else -math.inf)  # an earlier step's holds
             stop.known.update(interrupted_full_model_figures(stop.known, proven, outside))
             raise
         if result.x is None:
             if result.out_of_memory and best is not None:  # keep the last step's, and say why
                 return replace(best, status="feasible", message=_out_of_memory(columns))
             break  # time limit before a solution of this step: keep the last one
-        # both are valid lower bounds for the full model (L(y) alone may already be close enough),
-        # and so is an earlier step's: a wider MIP stopped early can prove less than a narrower one did
-        bound = max(lp.bound, min(result.bound, outside), best.bound if best is not None else -math.inf)
+        # valid lower bounds for the full model: this step's and ``proven`` (L(y), or an earlier step's:
+        # a wider MIP stopped early can prove less than a narrower one did)
+        bound = max(proven, min(result.bound, outside))
         proven_here = result.status == "optimal" and outside >= result.bound  # the MIP's proof covers all
         certified = proven_here or relative_gap(result.objective, bound) <= options.mip_rel_gap
         if not certified:  # a cheaper solution cut off for detached cycles: re-route it
