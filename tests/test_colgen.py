@@ -415,6 +415,51 @@ def test_flow_rows_in_every_intersection_layer_keep_the_optimum_without_cut_roun
     assert "cut round" not in caplog.text
 
 
+def ablation_without_con(seed):
+    base = creature_lazy(24, seed)
+    families = ("CYC", "PES", "ANS")
+    return LazyModel(
+        base.graph, base.curve, base.source_verts, base.target_verts, base.vertex_costs, families
+    )
+
+
+def test_colgen_adds_no_connectivity_cuts_to_an_ablation_without_con(monkeypatch):
+    """Without CON a solution need not be one closed path: cuts that exclude detached cycles would cut
+    off the ablation's own optimum."""
+    from spidermatch.solve.cuts import CutPool
+
+    lazy = ablation_without_con(3)
+    cut_calls = []
+    original = CutPool.add_two_cycle_cuts
+    monkeypatch.setattr(
+        CutPool, "add_two_cycle_cuts", lambda pool, *args: cut_calls.append(1) or original(pool, *args)
+    )
+    solved = solve_with_strategy(
+        "colgen", lazy, lazy.graph, lazy.curve, replace(EXACT, flow_rows="intersections")
+    )
+    plain = solve_plain(lazy.full_model(), lazy.graph, lazy.curve, EXACT)
+    assert not cut_calls
+    assert solved.status == "optimal"
+    assert solved.objective == pytest.approx(plain.objective, rel=1e-9)
+
+
+def test_pool_flow_rows_are_not_added_to_a_model_without_con(caplog):
+    """The flow rows a pool holds (every intersection layer, as ``flow_rows="intersections"`` seeds it)
+    exclude detached cycles too: a model without CON gets none."""
+    from spidermatch.solve.cuts import CutPool, solve_with_cuts
+
+    lazy = ablation_without_con(3)
+    pool = CutPool(first_layer=lazy.curve.first_layer)
+    pool.flow_layers |= {int(layer) for layer in np.flatnonzero(lazy.curve.is_intersection_layer)}
+    model = lazy.full_model()
+    with caplog.at_level("INFO"):
+        solved = solve_with_cuts(model, lazy.graph, EXACT, pool=pool)
+    assert "flow rows keep the path" not in caplog.text
+    assert solved.objective == pytest.approx(
+        solve_plain(model, lazy.graph, lazy.curve, EXACT).objective, rel=1e-9
+    )
+
+
 def test_a_wider_mip_that_proves_less_keeps_the_bound_of_the_step_before(monkeypatch, caplog):
     """Step 1 proves a bound for the full model, step 2 (wider) is stopped with a weaker MIP bound: the
     answer keeps step 1's (each step's bound holds for the full model)."""

@@ -67,7 +67,7 @@ from spidermatch.model.product_graph import ProductGraph
 from spidermatch.model.solution import LP_SUPPORT, used_columns
 from spidermatch.shutdown import RunInterrupted
 from spidermatch.solve.connectivity import detached_components
-from spidermatch.solve.cuts import cut_pool, solve_with_cuts
+from spidermatch.solve.cuts import cut_pool, imposes_paths, solve_with_cuts
 from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import LP_EXTRA, HighsSession
 from spidermatch.solve.pricing import Pricing, price, up_to, with_path_reduced_costs
@@ -248,7 +248,8 @@ def _lp_incumbent(lazy: LazyModel, lp: ColgenLp) -> np.ndarray | None:
 
 
 def _restricted_mip(lazy, columns, options, incumbent, pool, layers, stop_when) -> SolveResult:
-    pool.add_two_cycle_cuts(lazy.graph, layers, columns)
+    if imposes_paths(lazy):  # connectivity cuts hold for closed paths only (an ablation without CON)
+        pool.add_two_cycle_cuts(lazy.graph, layers, columns)
     logger.info("colgen: MIP over %d of %d columns, gap %.2g", columns.size, lazy.n_vars, options.mip_rel_gap)
     return solve_with_cuts(
         None, lazy.graph, options, columns, incumbent, pool, lazy.compact_submodel(columns), stop_when

@@ -210,7 +210,7 @@ def solve_with_cuts(
 
     if pool.rows is not None:
         add_cuts(pool.rows, pool.lower, pool.upper)
-    if pool.flow_layers:
+    if pool.flow_layers and imposes_paths(sub):  # like the cuts, flow rows hold for closed paths only
         _add_flow_rows(flows, pool.flow_layers)
     if incumbent is not None:
         offer_start_path(session, flows, incumbent if columns is None else incumbent[columns])
