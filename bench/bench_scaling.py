@@ -41,6 +41,12 @@ COLUMNS = (
 FULL_MODEL_COLUMNS_PER_FACE2 = 3.74  # |E_P| ~ 0.575 f * 6.5 f on FAUST_r meshes decimated to f faces
 
 
+def instance_log_name(pair, faces: int, strategy: str, tour: str, curve_seed: int, flow_rows: str) -> str:
+    """The file name of one instance's solver log: every setting that tells two instances apart."""
+    rows_named = "" if flow_rows == "found" else f"_flow_rows_{flow_rows}"  # the default: unnamed, as before
+    return f"{pair[0]}_{pair[1]}_{faces}_{strategy}_{tour}_seed{curve_seed}{rows_named}.log"
+
+
 def run_instance(task: tuple) -> dict:
     """Match one pair at one resolution with one strategy; the row of figures."""
     data, pair, faces, strategy, features, checkpoint, adapt_steps, time_limit, matching, log_dir, *rest = (
@@ -53,7 +59,7 @@ def run_instance(task: tuple) -> dict:
     if log_dir:  # the solver's INFO log of this instance, one file per instance
         import logging
 
-        name = f"{pair[0]}_{pair[1]}_{faces}_{strategy}_{tour}_seed{curve_seed}.log"
+        name = instance_log_name(pair, faces, strategy, tour, curve_seed, flow_rows)
         logging.basicConfig(filename=str(Path(log_dir) / name), level=logging.INFO, force=True)
     from spidermatch.eval.errors import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match

@@ -152,3 +152,13 @@ def test_a_scanned_part_is_a_clean_cut_of_the_dense_scan_with_its_originals_foun
     moved = np.linalg.norm(scanned.verts[scanned_position[found]] - whole.verts[found], axis=1)
     edge = np.linalg.norm(whole.verts[whole.faces[:, 0]] - whole.verts[whole.faces[:, 1]], axis=1).mean()
     assert np.median(moved) < 0.5 * edge
+
+
+def test_scaling_logs_of_two_flow_row_settings_get_two_names():
+    """``bench_scaling.py --log-dir``: a run with ``--flow-rows intersections`` keeps the default's log."""
+    from bench_scaling import instance_log_name
+
+    args = (("tr_reg_076", "tr_reg_077"), 4000, "colgen", "two_opt", 0)
+    default, everywhere = instance_log_name(*args, "found"), instance_log_name(*args, "intersections")
+    assert default == "tr_reg_076_tr_reg_077_4000_colgen_two_opt_seed0.log"  # as the stored logs are named
+    assert everywhere != default and "intersections" in everywhere
