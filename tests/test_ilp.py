@@ -93,10 +93,12 @@ def brute_force(curve, graph, costs):
 @pytest.mark.parametrize("curve_vertices", [[0, 1, 0, 2], [0, 1, 2, 3], [0, 1, 0, 1], [0, 1, 2, 1]])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("strategy", ["plain", "rcfix"])
-def test_ilp_optimum_equals_brute_force(curve_vertices, seed, strategy):
+@pytest.mark.parametrize("flow_rows", ["found", "intersections"])
+def test_ilp_optimum_equals_brute_force(curve_vertices, seed, strategy, flow_rows):
     curve, graph, costs = instance(curve_vertices, TRIANGLE, 3, seed)
     model = build_model(graph, curve, costs)
-    exact = solve_with_strategy(strategy, model, graph, curve, SolverOptions(mip_rel_gap=0.0))
+    options = SolverOptions(mip_rel_gap=0.0, flow_rows=flow_rows)
+    exact = solve_with_strategy(strategy, model, graph, curve, options)
     assert exact.status == "optimal"
     expected = brute_force(curve, graph, costs)
     assert exact.objective == pytest.approx(expected, rel=1e-9)

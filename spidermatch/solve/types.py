@@ -41,11 +41,11 @@ class SolverOptions:
         large restricted MIP (0.5 for each of two solves side by side;
         :func:`spidermatch.memory.available_memory`).
     flow_rows : str
-        Where the restricted MIPs of ``colgen`` and ``rcfix`` get the flow rows that keep the
-        path in one piece (:mod:`spidermatch.solve.layer_flow`): "found", in the layers where a
-        solution showed a detached cycle (then re-solved); "intersections", in every
-        self-intersection layer of the SpiderCurve from the first MIP on (measured: stronger
-        bounds, weaker incumbents; docs/solver_failures.md).
+        Where the MIPs (the restricted ones of ``colgen`` and ``rcfix``, ``plain``'s full model)
+        get the flow rows that keep the path in one piece (:mod:`spidermatch.solve.layer_flow`):
+        "found", in the layers where a solution showed a detached cycle (then re-solved);
+        "intersections", in every self-intersection layer of the SpiderCurve from the first MIP
+        on (measured: stronger bounds, weaker incumbents; docs/solver_failures.md).
 
     """
 
