@@ -309,6 +309,17 @@ def test_09_unwritable_run_folder(tmp_path):
     assert run_match(config("match", SMALL), blocker / "run") == shutdown.EXIT_OUTPUT_ERROR
 
 
+@pytest.mark.skipif(not Path("/proc/self").exists(), reason="needs a /proc file system")
+def test_09_run_folder_in_a_place_no_folder_can_be_made(tmp_path, monkeypatch):
+    """Permissions alone do not tell (root may write anywhere by them, yet not into /proc)."""
+    from spidermatch.cli.options import unwritable_folder
+
+    monkeypatch.setattr(os, "access", lambda *args, **kwargs: True)  # as root sees it
+    assert "no folder can be made in /proc" in unwritable_folder("/proc/spidermatch_run")
+    assert unwritable_folder(tmp_path / "outputs" / "run") is None
+    assert list(tmp_path.iterdir()) == []  # the probe left nothing behind
+
+
 # 10. option values and names: exit 2 naming the option (through the real entry point)
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import sys
+import tempfile
 from pathlib import Path
 
 from spidermatch.shutdown import EXIT_BAD_INPUT, EXIT_OUTPUT_ERROR
@@ -29,7 +30,12 @@ def compose_problem(config_name: str, overrides: list[str]):
 
 
 def unwritable_folder(folder: str | os.PathLike) -> str | None:
-    """Why a run folder cannot be created or written (None if it can), without creating it."""
+    """Why a run folder cannot be created or written (None if it can), without creating it.
+
+    The nearest existing folder on its path is asked, then tried: a scratch folder is made
+    in it and removed, because permissions alone do not tell (root may write anywhere by
+    its permissions, yet not into ``/proc`` or a read-only mount).
+    """
     path = Path(folder).absolute()
     for parent in (path, *path.parents):
         if parent.exists():
@@ -37,7 +43,16 @@ def unwritable_folder(folder: str | os.PathLike) -> str | None:
                 return f"{parent} is not a folder"
             if not os.access(parent, os.W_OK | os.X_OK):
                 return f"{parent} is not writable"
-            return None
+            return _creation_problem(parent)
+    return None
+
+
+def _creation_problem(folder: Path) -> str | None:
+    """Why no folder can be made in the existing ``folder`` (None if one can)."""
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".spidermatch-probe-", dir=folder))
+    except OSError as error:
+        return f"no folder can be made in {folder} ({error.strerror or error})"
     return None
 
 
