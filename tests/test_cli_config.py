@@ -31,7 +31,7 @@ def run_command(main: str, args: list[str], cwd: Path) -> subprocess.CompletedPr
             ["source=PATH target=PATH", "resolution=N", "solver.time_limit=S"],
         ),
         ("spidermatch.cli.main:eval_main", ["dataset=DIR", "n_pairs=N", "hydra/launcher=joblib"]),
-        ("train.cli:train_main", ["train/experiment=faust_r", "data.root=DIR", "resume=PATH"]),
+        ("train.cli:main", ["train/experiment=faust_r", "data.root=DIR", "resume=PATH"]),
     ],
 )
 def test_help_lists_the_main_options(tmp_path, main, expected):
@@ -58,6 +58,27 @@ def test_cfg_job_of_a_file_run_shows_files_and_the_resolution_used(tmp_path):
     assert cfg["resolution"] == 1000
     cfg = yaml.safe_load(run_command("spidermatch.cli.main:match_main", ["--cfg", "job"], tmp_path).stdout)
     assert cfg["data"]["kind"] == "synthetic" and cfg["resolution"] == 200
+
+
+@pytest.mark.parametrize(
+    ("args", "code", "expected"),
+    [
+        (["run.n_stepz=5"], 2, "unknown option 'run.n_stepz' (did you mean run.n_steps?)"),
+        (["train/experiment=nope"], 2, "train/experiment/nope"),
+        (["hydra.run.dir={blocker}/run"], 6, "cannot write the run folder"),
+    ],
+)
+def test_training_refuses_bad_options_and_run_folders_in_one_line(tmp_path, args, code, expected):
+    """As spidermatch-match does: before Hydra starts, so no traceback and no stray run folder."""
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    args = [arg.format(blocker=blocker) for arg in args]
+    if not any(arg.startswith("hydra.run.dir=") for arg in args):
+        args.append(f"hydra.run.dir={tmp_path / 'run'}")
+    out = run_command("train.cli:main", args, tmp_path)
+    assert out.returncode == code, out.stderr[-2000:]
+    assert expected in out.stderr and "Traceback" not in out.stderr
+    assert not (tmp_path / "run").exists() and not (tmp_path / "outputs").exists()
 
 
 def test_file_run_overrides():

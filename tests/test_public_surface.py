@@ -24,7 +24,7 @@ COMMANDS = {
     "spidermatch-match": "spidermatch.cli.main:match_main",
     "spidermatch-eval": "spidermatch.cli.main:eval_main",
     "spidermatch-collect": "spidermatch.cli.collect:main",
-    "spidermatch-train": "train.cli:train_main",
+    "spidermatch-train": "train.cli:main",
 }
 
 MATCH_PARAMETERS = [

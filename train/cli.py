@@ -77,5 +77,17 @@ def train_main(cfg: DictConfig) -> float:
     return result.best_val
 
 
-if __name__ == "__main__":
+def main() -> None:
+    """Console entry point of ``spidermatch-train``.
+
+    An unknown option or a bad value (exit 2) and a run folder that cannot be written (exit 6)
+    are refused with one line before Hydra starts, as for ``spidermatch-match``.
+    """
+    from spidermatch.cli.options import exit_on_bad_command_line
+
+    exit_on_bad_command_line("train", sys.argv[1:])
     train_main()
+
+
+if __name__ == "__main__":
+    main()
