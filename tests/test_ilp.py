@@ -662,3 +662,22 @@ def test_a_mip_out_of_memory_with_detached_cycles_is_not_solved_again(monkeypatc
     assert sum(run is runs[0] for run in runs) == 1  # the MIP's session ran once (the repair's MIPs aside)
     assert result.status == "feasible" and np.array_equal(result.x, optimum) and result.out_of_memory
     assert result.bound == -math.inf and pool.rows is not None
+
+
+@pytest.mark.parametrize("curve_vertices", [[0, 1, 0, 2], [0, 1, 2, 1]])
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("strategy", ["plain", "rcfix"])
+def test_costs_within_highs_tolerances_are_still_solved_to_the_optimum(
+    curve_vertices, seed, strategy, caplog
+):
+    """Costs of about 1e-9 (as a mesh matched to a copy of itself has): HiGHS alone calls a path up to
+    three times the optimum "optimal" (its tolerances are 1e-7); solved again with scaled costs."""
+    curve, graph, costs = instance(curve_vertices, TRIANGLE, 3, seed)
+    costs = costs * 1e-9
+    model = build_model(graph, curve, costs)
+    with caplog.at_level("WARNING", logger="spidermatch.solve.strategies"):
+        exact = solve_with_strategy(strategy, model, graph, curve, SolverOptions(mip_rel_gap=0.0))
+    assert "within HiGHS's tolerances" in caplog.text
+    assert exact.status == "optimal"
+    assert exact.objective == pytest.approx(brute_force(curve, graph, costs), rel=1e-9)
+    assert exact.bound <= exact.objective * (1 + 1e-9)
