@@ -235,6 +235,20 @@ def test_a_reused_folder_keeps_no_outputs_of_the_earlier_run(tmp_path):
     assert (folder / "matches.csv").is_file()
 
 
+def test_a_folder_of_the_users_own_files_is_left_alone(tmp_path):
+    """Files named as a run's outputs (``error.png``) that no run wrote are the user's: refused, exit 6,
+    nothing removed or written over (not even ``result.json``, which may be theirs too)."""
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "error.png").write_text("my picture")
+    (folder / "result.json").write_text('{"mine": 1}')
+    for _ in range(2):  # a second try finds the same folder
+        assert run_match(config("match", SMALL), folder) == shutdown.EXIT_OUTPUT_ERROR
+    assert (folder / "error.png").read_text() == "my picture"
+    assert (folder / "result.json").read_text() == '{"mine": 1}'
+    assert not (folder / "matches.csv").exists()
+
+
 def test_a_folder_held_by_a_live_run_is_refused(tmp_path):
     folder = tmp_path / "run"
     command = [sys.executable, "-c", "from spidermatch.cli.main import match_main; match_main()"]

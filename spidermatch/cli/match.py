@@ -25,6 +25,7 @@ from spidermatch.cli.inputs import (
     second_opinion_features,
 )
 from spidermatch.cli.outputs import (
+    ForeignFolder,
     final_line,
     result_summary,
     stage_failed,
@@ -90,6 +91,8 @@ def run_pair(
         except (shutdown.RunInterrupted, OSError, *INPUT_ERRORS) as error:
             status, code, message, known = shutdown.final_status(error, INPUT_ERRORS)
             (logger.warning if status == "interrupted" else logger.error)("%s", message)
+            if isinstance(error, ForeignFolder):  # its result.json, if any, is the user's too
+                result_path = None
             report.update(known)
             report.update(status=status, proven_optimal=False, error=message, exit_code=code)
         with shutdown.signals_held():
