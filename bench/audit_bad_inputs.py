@@ -84,7 +84,7 @@ def api(code: str) -> list:
 def make_cases(data: Path, work: Path) -> list[Case]:
     off = data / "off"
     x, y = off / "tr_reg_070.off", off / "tr_reg_071.off"
-    vx, fx = read_off(x)
+    vx, fx, _ = read_off(x)
     flipped = fx.copy()
     flipped[::2] = flipped[::2, ::-1]
     write_off(work / "flipped.off", vx, flipped)
@@ -104,9 +104,9 @@ def make_cases(data: Path, work: Path) -> list[Case]:
     write_off(work / "tet_a.off", tet_v, tet_f)
     write_off(work / "tet_b.off", tet_v * [1, 1.2, 0.9], tet_f)
     write_off(work / "raw_scan.off", *raw_scan(vx, fx))
-    write_off(work / "scan_holes.off", *scanner_holes(read_off(y)[0], read_off(y)[1], SCANNER_HOLES))
+    write_off(work / "scan_holes.off", *scanner_holes(*read_off(y)[:2], SCANNER_HOLES))
     write_binary_stl(work / "source.stl", vx, fx)
-    write_soup_obj(work / "target_soup.obj", *read_off(y))
+    write_soup_obj(work / "target_soup.obj", *read_off(y)[:2])
     base = [f"source={x}", f"target={y}", "resolution=150"]
     reuse = work / "reused"
 

@@ -414,6 +414,42 @@ def test_obj_with_groups_materials_and_quads_is_read_as_one_mesh(tmp_path):
     assert make_mesh(mesh.verts, mesh.faces).notes == ()  # one consistent orientation
 
 
+@pytest.mark.parametrize("variant", ["quads", "coff", "face_colours", "bom_crlf"])
+def test_off_variants_other_tools_write_are_read_as_the_same_surface(tmp_path, variant):
+    """Quads (MeshLab, Geomview), COFF vertex colours, face colours, a byte-order mark and CRLF lines."""
+    box = trimesh.creation.box()
+    quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    triangles = [[a, b, c] for a, b, c, d in quads] + [[a, c, d] for a, b, c, d in quads]
+    keyword, colour, faces = "OFF", "", [f"3 {a} {b} {c}" for a, b, c in triangles]
+    if variant == "quads":
+        faces = [f"4 {a} {b} {c} {d}" for a, b, c, d in quads]
+    elif variant == "coff":
+        keyword, colour = "COFF", " 255 0 0 255"
+    elif variant == "face_colours":
+        faces = [f"{face} 0.5 0.5 0.5" for face in faces]
+    lines = [keyword, f"{len(box.vertices)} {len(faces)} 0"]
+    lines += [f"{x} {y} {z}{colour}" for x, y, z in box.vertices] + faces
+    text = "\n".join(lines) + "\n"
+    path = tmp_path / "box.off"
+    if variant == "bom_crlf":
+        path.write_bytes(b"\xef\xbb\xbf" + text.replace("\n", "\r\n").encode())
+    else:
+        path.write_text(text)
+    mesh = load_mesh(path)
+    np.testing.assert_allclose(mesh.verts, box.vertices)
+    assert mesh.n_faces == 12 and mesh.area == pytest.approx(box.area)
+    assert (variant == "quads") == any(
+        "6 faces with more than three corners were split" in n for n in mesh.notes
+    )
+
+
+def test_an_off_face_line_shorter_than_its_corner_count_names_the_line(tmp_path):
+    path = tmp_path / "short.off"
+    path.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n4 0 1 2\n")
+    with pytest.raises(MeshError, match="short.off:6: a face line needs its corner count"):
+        load_mesh(path)
+
+
 def test_a_folder_given_as_a_mesh_says_so(tmp_path):
     (tmp_path / "shape.off").mkdir()
     with pytest.raises(MeshError, match="shape.off: is a folder, not a mesh file"):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -73,7 +74,7 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
 def _text_of(path: Path) -> str:
     """The file's text, or a MeshError naming it when it is not UTF-8 text."""
     try:
-        return path.read_bytes().decode("utf-8")
+        return path.read_bytes().decode("utf-8").removeprefix("\ufeff")  # a byte-order mark is no content
     except UnicodeDecodeError as error:
         raise MeshError(f"{path}: not a text file (byte {error.start} is not UTF-8)") from error
 
@@ -92,10 +93,17 @@ def _content_lines(path: Path, text: str | None = None) -> list[tuple[int, list[
     return lines
 
 
+OFF_KEYWORD = re.compile(r"(ST)?C?N?OFF")
+"""OFF header keywords in 3-D: ``OFF``, ``COFF`` (vertex colours), ``NOFF`` (normals), ``STOFF``, ..."""
+
+
 def _off_counts(path: Path, lines: list[tuple[int, list[str]]]) -> tuple[int, int, int]:
     """Vertex and face counts from the header, and the index of the first data line."""
-    if not lines or lines[0][1][0] != "OFF":
-        raise MeshError(f"{path}: not an OFF file (the first line must be 'OFF')")
+    if not lines or not OFF_KEYWORD.fullmatch(lines[0][1][0]):
+        first = " ".join(lines[0][1])[:40] if lines else ""
+        raise MeshError(
+            f"{path}: not an OFF file (the first line must be 'OFF', or COFF, NOFF, ...; found {first!r})"
+        )
     counts, start = lines[0][1][1:], 1
     if not counts:
         if len(lines) < 2:
@@ -127,24 +135,27 @@ def _off_block(path: Path, lines, dtype, width: int, what: str) -> np.ndarray:
         raise
 
 
-def read_off(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+def read_off(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Read an OFF file strictly: the header's counts must match what the file holds.
 
-    Vertex lines hold three coordinates, face lines ``3 i j k`` (triangles only); fewer
-    lines than promised, or anything after the promised faces, is an error naming the
-    file (and the line).
+    Vertex lines begin with three coordinates (colours or normals after them, as COFF and NOFF
+    write them, are ignored), face lines with ``n i_1 ... i_n`` (a face colour after them is
+    ignored; polygons are split into triangle fans, which the notes report); fewer lines than
+    promised, or anything after the promised faces, is an error naming the file (and the line).
 
     Returns
     -------
     verts : np.ndarray, shape (V, 3), float64
     faces : np.ndarray, shape (F, 3), int64 (indices not yet range-checked)
+    notes : list of str
+        What was changed on reading (polygons split).
 
     """
     path = Path(path)
     text = _text_of(path)
     quick = _parse_plain_off(text)
     if quick is not None:
-        return quick
+        return (*quick, [])
     lines = _content_lines(path, text)
     n_verts, n_faces, start = _off_counts(path, lines)
     body = lines[start:]
@@ -160,15 +171,35 @@ def read_off(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
             f"{path}:{number}: unexpected content after the {n_verts} vertices and {n_faces} faces the "
             "header promises"
         )
-    verts = _off_block(path, body[:n_verts], np.float64, 3, "vertex")
-    faces = _off_block(path, body[n_verts:], np.int64, 4, "face")
-    polygons = np.flatnonzero(faces[:, 0] != 3)
-    if polygons.size:
-        number = body[n_verts + polygons[0]][0]
-        raise MeshError(
-            f"{path}:{number}: face with {faces[polygons[0], 0]} corners; only triangles are supported"
-        )
-    return verts, faces[:, 1:]
+    verts = _off_block(
+        path, [(number, tokens[:3]) for number, tokens in body[:n_verts]], np.float64, 3, "vertex"
+    )
+    faces, polygons = _off_faces(path, body[n_verts:])
+    notes = (
+        [f"{path}: {polygons} faces with more than three corners were split into triangles"]
+        if polygons
+        else []
+    )
+    return verts, faces, notes
+
+
+def _off_faces(path: Path, lines) -> tuple[np.ndarray, int]:
+    """Triangles (F, 3) of OFF face lines ``n i_1 ... i_n [colour]``, and how many polygons were split.
+
+    A polygon (n > 3) is split into a triangle fan from its first corner.
+    """
+    triangles, polygons = [], 0
+    for number, tokens in lines:
+        corners = _off_block(path, [(number, tokens[:1])], np.int64, 1, "face")[0, 0]
+        if corners < 3 or len(tokens) < corners + 1:
+            raise MeshError(
+                f"{path}:{number}: a face line needs its corner count (at least 3) and that many indices, "
+                f"found {' '.join(tokens)!r}"
+            )
+        ids = _off_block(path, [(number, tokens[1 : corners + 1])], np.int64, corners, "face")[0]
+        polygons += corners > 3
+        triangles += [[ids[0], ids[k], ids[k + 1]] for k in range(1, corners - 1)]
+    return np.array(triangles, dtype=np.int64).reshape(-1, 3), polygons
 
 
 def _parse_plain_off(text: str) -> tuple[np.ndarray, np.ndarray] | None:
