@@ -81,6 +81,35 @@ def test_training_refuses_bad_options_and_run_folders_in_one_line(tmp_path, args
     assert not (tmp_path / "run").exists() and not (tmp_path / "outputs").exists()
 
 
+def test_path_options_hydra_would_misread_are_quoted():
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    from spidermatch.cli.options import quoted_paths
+
+    names = ["in/ünï/形状é.off", "a (1).off", "in/a,b.off", "it's.pt", "x=y/~z.off", "plain/name.off"]
+    argv = [f"source={names[0]}", f"target={names[1]}", f"source_corr={names[2]}", f"checkpoint={names[3]}"]
+    argv += [f"data.root={names[4]}", f"target_corr={names[5]}", "resolution=300"]
+    quoted = quoted_paths(argv)
+    parser = OverridesParser.create()
+    assert [parser.parse_override(argument).value() for argument in quoted[:6]] == names
+    assert quoted[5:] == argv[5:]  # what Hydra reads as given stays as given
+    assert quoted_paths(["-m", "source=a.off,b.off"]) == ["-m", "source=a.off,b.off"]  # a sweep's list
+
+
+def test_a_file_run_with_a_name_hydra_cannot_read_unquoted(tmp_path):
+    root = write_dataset(SyntheticShapes(n_shapes=2, n_verts=700), tmp_path / "Körper (1)")
+    args = [
+        f"source={root}/off/creature_000.off",
+        f"target={root}/off/creature_001.off",
+        "resolution=60",
+        "output.png=false",
+        f"hydra.run.dir={tmp_path / 'run'}",
+    ]
+    out = run_command("spidermatch.cli.main:match_main", args, tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert (tmp_path / "run" / "matches.csv").is_file()
+
+
 def test_file_run_overrides():
     assert file_run_overrides(["source=a", "target=b"]) == ["source=a", "target=b", "data=files"]
     assert file_run_overrides(["source=a", "data=synthetic"]) == ["source=a", "data=synthetic"]

@@ -83,8 +83,9 @@ def main() -> None:
     An unknown option or a bad value (exit 2) and a run folder that cannot be written (exit 6)
     are refused with one line before Hydra starts, as for ``spidermatch-match``.
     """
-    from spidermatch.cli.options import exit_on_bad_command_line
+    from spidermatch.cli.options import exit_on_bad_command_line, quoted_paths
 
+    sys.argv[1:] = quoted_paths(sys.argv[1:])
     exit_on_bad_command_line("train", sys.argv[1:])
     train_main()
 

@@ -99,17 +99,18 @@ def file_run_overrides(overrides: list[str]) -> list[str]:
 
 def match_main() -> None:
     """Console entry point of ``spidermatch-match``."""
-    from spidermatch.cli.options import exit_on_bad_command_line
+    from spidermatch.cli.options import exit_on_bad_command_line, quoted_paths
 
-    sys.argv[1:] = file_run_overrides(sys.argv[1:])
+    sys.argv[1:] = file_run_overrides(quoted_paths(sys.argv[1:]))
     exit_on_bad_command_line("match", sys.argv[1:])
     _hydra_app(run_match, "match")()
 
 
 def eval_main() -> None:
     """Console entry point of ``spidermatch-eval``."""
-    from spidermatch.cli.options import exit_on_bad_command_line
+    from spidermatch.cli.options import exit_on_bad_command_line, quoted_paths
 
+    sys.argv[1:] = quoted_paths(sys.argv[1:])
     exit_on_bad_command_line("eval", sys.argv[1:])
     _hydra_app(run_eval, "eval")()
 

@@ -118,6 +118,47 @@ def unknown_option_problem(config_name: str, overrides: list[str]) -> str | None
     return None
 
 
+PATH_KEYS = frozenset(
+    {"source", "target", "source_corr", "target_corr", "checkpoint", "second_opinion", "pairs_file",
+     "dataset", "data.root", "resume", "hydra.run.dir", "hydra.sweep.dir"}
+)  # fmt: skip
+"""Options whose values are file or folder names: quoted for Hydra when they need it."""
+
+
+def quoted_paths(argv: list[str]) -> list[str]:
+    """``argv`` with every path option's value quoted where Hydra's grammar would misread it.
+
+    Hydra's override grammar refuses letters outside ASCII, parentheses, ``=``, ``~`` and
+    apostrophes in an unquoted value and reads a comma as a sweep, all common in file names
+    (``scan (1).off``, ``Körper.ply``). A value that Hydra would not read back exactly as given
+    is put in single quotes (an apostrophe in it escaped); a value already quoted is left alone,
+    and so is every argument of a ``-m`` sweep (whose commas list values).
+    """
+    if "-m" in argv or "--multirun" in argv:  # a sweep may list paths with commas: left to the user
+        return list(argv)
+    return [_quoted_path(argument) for argument in argv]
+
+
+def _quoted_path(argument: str) -> str:
+    key, separator, value = argument.partition("=")
+    if not separator or key.lstrip("+~") not in PATH_KEYS or value[:1] in ("'", '"') or not value:
+        return argument
+    if _hydra_value(argument) == value:
+        return argument
+    quoted = f"{key}='" + value.replace("'", "\\'") + "'"
+    return quoted if _hydra_value(quoted) == value else argument
+
+
+def _hydra_value(argument: str):
+    """The value Hydra's override parser reads from ``argument`` (None if it cannot parse it)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    try:
+        return OverridesParser.create().parse_override(argument).value()
+    except Exception:  # any parse failure: the caller quotes or leaves the argument to Hydra's message
+        return None
+
+
 def exit_on_bad_command_line(config_name: str, argv: list[str]) -> None:
     """Exit 2 for an unknown option or value syntax, 6 for an unusable run folder (single runs).
 
