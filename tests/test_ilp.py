@@ -529,6 +529,8 @@ def test_a_run_after_one_stopped_on_request_is_not_stopped_by_the_old_request():
     session.stop_when = lambda incumbent, dual_bound: True
     first = session.run()
     assert first.status in ("no_solution", "feasible") and session.stopped_early
+    # HiGHS calls every interrupt "Interrupted by user"; the message says who stopped it
+    assert first.message.startswith("stopped early by spidermatch") and "user" not in first.message
     session.stop_when = None
     second = session.run()
     assert second.status == "optimal" and not session.stopped_early

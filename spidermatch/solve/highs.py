@@ -386,11 +386,22 @@ def solve_model(
     return replace(result, wall_time=time.perf_counter() - start)
 
 
+def _interrupt_reason(session: HighsSession) -> str:
+    """Who stopped an interrupted run, in place of HiGHS's "Interrupted by user" (spidermatch mostly)."""
+    if shutdown.stop_requested():
+        return "interrupted by a signal (Ctrl-C or SIGTERM)"
+    if session.stopped_early:
+        return "stopped early by spidermatch (time kept for a repair, or nothing more to gain from this MIP)"
+    return "stopped by spidermatch (time limit)"
+
+
 def _read_result(session: HighsSession, wall: float) -> SolveResult:
     highs, relax = session.highs, session.relax
     status = highs.getModelStatus()
     info = highs.getInfo()
     message = highs.modelStatusToString(status)
+    if status == _STATUS.kInterrupt:
+        message = _interrupt_reason(session)
     has_solution = info.primal_solution_status == 2  # kSolutionStatusFeasible
     x = np.asarray(highs.getSolution().col_value, dtype=np.float64) if has_solution else None
     if x is not None and not relax:
