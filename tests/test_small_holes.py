@@ -259,6 +259,9 @@ def test_a_limb_cut_across_is_a_cut_however_small_its_loop(creature):
     assert loop_alignments(cut.verts, cut.faces, edges, loop)[0] < 0.1  # but the surface runs across it
     assert (topology(cut).open_boundaries, topology(cut).small_holes) == (1, 0)
     assert small_holes_closed(cut) is cut
+    # as a target against the whole, the refusal says why a loop this small is not ignored
+    with pytest.raises(MeshError, match="spans only [0-9.]+% of its area, but runs across a limb"):
+        pair_kind(limb, cut)
     scan = punched(creature, far_apart(creature, 3), "scan")  # holes in a surface stay small holes
     edges, loop = boundary_loops(scan.faces)
     assert (loop_alignments(scan.verts, scan.faces, edges, loop) > 0.45).all()

@@ -460,11 +460,18 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
         caution = part_cautions(source, target, ratio, incomplete_target=bool(top_y.open_boundaries))
         return PairKind("partial", reason, ratio, caution)
     if top_y.open_boundaries > top_x.open_boundaries and top_y.genus <= top_x.genus:
+        if top_y.widest_span < SMALL_HOLE_SHARE:  # small, yet not a scanner's hole: across a limb
+            why = (
+                f"its widest loop spans only {top_y.widest_span:.1%} of its area, but runs across a limb, "
+                "like a cut-off fingertip or foot, not along the surface as a scanner's hole does"
+            )
+        else:
+            why = f"its widest loop spans {top_y.widest_span:.1%} of its area"
         raise MeshError(
-            f"{refusal}; the target looks like a part of the source. The partial mode maps a part onto "
-            f"its whole: swap source and target. If {target.name} is a whole scan with holes (its widest "
-            f"loop spans {top_y.widest_span:.1%} of its area; holes under {SMALL_HOLE_SHARE:.0%} count as "
-            "a scanner's and are ignored), allow_topology_mismatch=true matches the two as whole shapes"
+            f"{refusal}; the target looks like a part of the source ({why}). The partial mode maps a part "
+            f"onto its whole: swap source and target. Holes under {SMALL_HOLE_SHARE:.0%} of the area in "
+            f"the surface count as a scanner's and are ignored; if {target.name} is a whole scan with "
+            "other holes, allow_topology_mismatch=true matches the two as whole shapes"
         )
     raise MeshError(
         f"{refusal}; across different genus no consistent matching may exist and the solver can "
