@@ -89,7 +89,7 @@ def test_a_part_is_recognised_and_other_topology_differences_refused(creature):
     assert kind.mode == "partial" and "part.off" in kind.reason and kind.area_ratio < 0.6
     assert kind.caution == ""
     holed = holes_cut(part, part.verts[[0]], 0.8, "holed.off").mesh  # a part of the part: both open
-    assert "partial-to-partial matching is not supported" in pair_kind(holed, part).caution
+    assert "partial=both matches two incomplete shapes" in pair_kind(holed, part).caution
     with pytest.raises(MeshError, match="swap source and target"):
         pair_kind(creature, part)
     with pytest.raises(MeshError, match="partial=auto"):

@@ -377,7 +377,8 @@ def cut_against_hole(top_x: Topology, top_y: Topology, ratio: float) -> bool:
 
 INCOMPLETE_TARGET = (
     "the target has boundary loops too: if it is incomplete as well, parts of the source may have no "
-    "partner, and the map still gives every source vertex one (partial-to-partial matching is not supported)"
+    "partner, and the map still gives every source vertex one (partial=both matches two incomplete shapes "
+    "on their estimated overlap)"
 )
 
 
