@@ -183,8 +183,7 @@ def check_meshes_fit(n_verts: tuple[int, int], dense: bool, room: int | None = N
     if room is None or needed <= room:
         return needed
     sparse_needed = BASE_BYTES + BYTES_PER_INPUT_VERTEX["sparse"] * total
-    fitting = int(max(room - BASE_BYTES, 0) / BYTES_PER_INPUT_VERTEX["dense"] / 2)
-    advice = f"decimate both meshes to about {fitting:,} vertices each before matching"
+    advice = decimation_advice(n_verts, int(max(room - BASE_BYTES, 0) / BYTES_PER_INPUT_VERTEX["dense"]))
     if dense and sparse_needed <= room:
         only_matches = f"the certified matches only, about {sparse_needed / GIB:.1f} GiB"
         advice = f"set dense.enabled=false ({only_matches}) or {advice}"
@@ -193,3 +192,16 @@ def check_meshes_fit(n_verts: tuple[int, int], dense: bool, room: int | None = N
         f"meshes of {n_verts[0]:,} and {n_verts[1]:,} vertices: {what} needs an estimated "
         f"{needed / GIB:.1f} GiB, but only {room / GIB:.1f} GiB of memory is available; {advice}"
     )
+
+
+def decimation_advice(n_verts: tuple[int, int], budget: int) -> str:
+    """What to decimate so that the two meshes (source, target) hold at most ``budget`` vertices together.
+
+    Only the larger mesh when the smaller one leaves it room (a raw scan against a template),
+    else both to half the budget each.
+    """
+    small, large = sorted(int(n) for n in n_verts)
+    if small <= budget // 2:
+        which = "source" if int(n_verts[0]) == large else "target"
+        return f"decimate the {which} (the larger mesh) to about {budget - small:,} vertices before matching"
+    return f"decimate both meshes to about {budget // 2:,} vertices each before matching"

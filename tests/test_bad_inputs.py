@@ -172,6 +172,18 @@ def test_meshes_too_large_for_memory_are_refused_before_the_features(tmp_path, m
         spidermatch.match(source, target, resolution=60)
 
 
+def test_a_raw_scan_against_a_template_is_told_to_decimate_the_scan_only():
+    from spidermatch import model_size
+
+    room = model_size.BASE_BYTES + model_size.BYTES_PER_INPUT_VERTEX["dense"] * 200_000  # 200 000 vertices
+    with pytest.raises(
+        OptionError, match=r"decimate the target \(the larger mesh\) to about 195,000 vertices"
+    ):
+        model_size.check_meshes_fit((5_000, 320_000), dense=True, room=room)
+    with pytest.raises(OptionError, match="decimate both meshes to about 100,000 vertices each"):
+        model_size.check_meshes_fit((150_000, 320_000), dense=True, room=room)
+
+
 def test_largest_fitting_resolution_fits():
     from spidermatch.model_size import check_model_fits, largest_fitting_resolution
 
