@@ -74,6 +74,16 @@ def test_a_fin_on_an_edge_is_dropped_with_the_faces_on_that_edge(creature):
     make_mesh(repaired.piece.mesh.verts, repaired.piece.mesh.faces, "piece")
 
 
+def test_duplicate_faces_are_named_and_only_the_copies_dropped(creature):
+    copies = creature.faces[[5, 50, 500]][:, ::-1]  # the same faces again, one of them turned round
+    raw = Mesh(creature.verts, np.vstack([creature.faces, copies]), "doubled.off")
+    with pytest.raises(MeshError, match=r"doubled.off: 3 duplicate faces .*face \d+ repeats face 5"):
+        make_mesh(raw.verts, raw.faces, raw.name)
+    repaired = largest_clean_piece(raw)
+    assert "duplicates of other faces 3" in repaired.summary and "non-manifold" not in repaired.summary
+    assert repaired.piece.mesh.n_faces == creature.n_faces and repaired.piece.kept_area == pytest.approx(1.0)
+
+
 def test_a_repair_that_keeps_too_little_is_refused_with_the_file_named(creature):
     shifted = [creature.verts + k * 10 * np.ptp(creature.verts) for k in range(3)]
     faces = np.vstack([creature.faces + k * creature.n_verts for k in range(3)])

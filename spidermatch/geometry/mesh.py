@@ -262,6 +262,7 @@ def validate_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") ->
     _check_face_indices(faces, verts.shape[0], name)
     _check_degenerate_faces(verts, faces, name)
     _check_unreferenced(faces, verts.shape[0], name)
+    _check_duplicate_faces(faces, name)
     _check_manifold_edges(faces, name)
     _check_manifold_vertices(faces, name)
     _check_single_component(faces, verts.shape[0], name)
@@ -332,6 +333,25 @@ def _check_unreferenced(faces: np.ndarray, n_verts: int, name: str) -> None:
         raise MeshError(
             f"{name}: {unused.size} vertices are not used by any face "
             f"(first: vertex {unused[0]}); remove them before matching"
+        )
+
+
+def duplicate_faces(faces: np.ndarray) -> np.ndarray:
+    """Faces (F,) bool that repeat the three vertices of an earlier face (in any order or orientation)."""
+    _, first = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
+    repeated = np.ones(len(faces), dtype=bool)
+    repeated[first] = False
+    return repeated
+
+
+def _check_duplicate_faces(faces: np.ndarray, name: str) -> None:
+    copies = np.flatnonzero(duplicate_faces(faces))
+    if copies.size:
+        first = faces[copies[0]]
+        original = int(np.flatnonzero((np.sort(faces, axis=1) == np.sort(first)).all(axis=1))[0])
+        raise MeshError(
+            f"{name}: {copies.size} duplicate faces (the three vertices of another face again; first: face "
+            f"{copies[0]} repeats face {original}, {first.tolist()}); repair=true drops the copies"
         )
 
 

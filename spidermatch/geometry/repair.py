@@ -33,6 +33,7 @@ from spidermatch.geometry.mesh import (
     _check_number_types,
     _check_shapes,
     degenerate_faces,
+    duplicate_faces,
     edge_face_counts,
     make_mesh,
     shared_edges,
@@ -148,9 +149,10 @@ def largest_clean_piece(mesh: Mesh) -> Repair:
     _check_finite(verts, name)
     _check_face_indices(faces, verts.shape[0], name)
     degenerate = degenerate_faces(verts, faces)
+    copies = duplicate_faces(faces) & ~degenerate  # a copy's original stays (it is no defect)
     crowded = np.zeros_like(degenerate)
-    crowded[~degenerate] = faces_on_crowded_edges(faces[~degenerate])
-    keep = ~(degenerate | crowded)
+    crowded[~(degenerate | copies)] = faces_on_crowded_edges(faces[~(degenerate | copies)])
+    keep = ~(degenerate | copies | crowded)
     if not keep.any():
         raise MeshError(f"{name}: no face is left after dropping degenerate and non-manifold ones")
     keep[keep] = largest_edge_connected(verts, faces[keep])
@@ -159,12 +161,12 @@ def largest_clean_piece(mesh: Mesh) -> Repair:
         piece = kept_part(mesh, keep, name, "repaired")
     except ValueError as error:
         raise MeshError(f"{name}: no clean piece is left to match ({error})") from None
-    full_area = float(triangle_areas(verts, faces[~degenerate]).sum())
+    full_area = float(triangle_areas(verts, faces[~(degenerate | copies)]).sum())
     kept_area = piece.mesh.area / full_area if full_area > 0 else 0.0
     checked = make_mesh(piece.mesh.verts, piece.mesh.faces, name)  # orientation; raises if it cannot
     piece = PartialShape(checked, piece.to_original, kept_area, piece.kind)
     face_ids = original_faces(piece, mesh)
-    summary = _summary(mesh, piece, face_ids, int(degenerate.sum()), int(crowded.sum()))
+    summary = _summary(mesh, piece, face_ids, int(degenerate.sum()), int(copies.sum()), int(crowded.sum()))
     if kept_area < MIN_KEPT_AREA:
         raise MeshError(
             f"{name}: its largest clean piece would be {summary}: too little to call a repair; clean "
@@ -173,12 +175,13 @@ def largest_clean_piece(mesh: Mesh) -> Repair:
     return Repair(piece, face_ids, summary, mesh.n_verts)
 
 
-def _summary(mesh: Mesh, piece: PartialShape, face_ids, degenerate: int, crowded: int) -> str:
-    rest = mesh.n_faces - len(face_ids) - degenerate - crowded
+def _summary(mesh: Mesh, piece: PartialShape, face_ids, degenerate: int, copies: int, crowded: int) -> str:
+    rest = mesh.n_faces - len(face_ids) - degenerate - copies - crowded
     dropped = [
         f"{what} {count}"
         for count, what in (
             (degenerate, "degenerate"),
+            (copies, "duplicates of other faces"),
             (crowded, "on non-manifold edges"),
             (rest, "in smaller pieces or smaller fans of bow-tie vertices"),
         )
