@@ -683,3 +683,22 @@ def test_costs_within_highs_tolerances_are_still_solved_to_the_optimum(
     assert exact.status == "optimal"
     assert exact.objective == pytest.approx(brute_force(curve, graph, costs), rel=1e-9)
     assert exact.bound <= exact.objective * (1 + 1e-9)
+
+
+def test_callback_figures_of_a_run_with_scaled_costs_are_read_in_the_model_costs():
+    """HiGHS returns its results unscaled but passes its callbacks figures in the scaled costs."""
+    from types import SimpleNamespace
+
+    import highspy
+
+    from spidermatch.solve.highs import HighsSession
+
+    curve, graph, model = creature_instance(24, seed=3)
+    session = HighsSession(model, SolverOptions(extra={"user_objective_scale": 10}))
+    data_out = SimpleNamespace(
+        mip_primal_bound=2048.0, mip_dual_bound=1024.0, mip_node_count=0, running_time=0.0, mip_gap=0.0,
+        objective_function_value=2048.0,
+    )  # fmt: skip
+    data_in = SimpleNamespace(user_interrupt=False)
+    session._on_callback(highspy.cb.HighsCallbackType.kCallbackMipInterrupt, "", data_out, data_in, None)
+    assert session.last_mip == (2.0, 1.0)  # 2^10 times too large as HiGHS passes them

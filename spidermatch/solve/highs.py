@@ -195,6 +195,8 @@ class HighsSession:
         self.full_columns: np.ndarray | None = None  # full-model id of each model column, where known
         self.costs = np.asarray(model.costs, dtype=np.float64)
         self.last_mip = (math.inf, -math.inf)  # (incumbent, dual bound) at HiGHS's last MIP callback
+        # HiGHS reports its results in the model's costs but the callbacks' figures in its scaled ones
+        self.callback_unscale = 2.0 ** -int(self.options.extra.get("user_objective_scale", 0))
         self.cancel = threading.Event()  # set when the waiting thread gave up: HiGHS stops at its next check
         self.stop_when = None  # (incumbent, dual bound) -> True to stop a MIP early (see solve_with_cuts)
         self.stopped_early = False  # the last run was stopped by stop_when
@@ -217,7 +219,11 @@ class HighsSession:
             return
         stop = shutdown.stop_requested() or self.cancel.is_set()
         if kind == kinds.kCallbackMipInterrupt:
-            self.last_mip = (float(data_out.mip_primal_bound), float(data_out.mip_dual_bound))
+            unscale = self.callback_unscale
+            self.last_mip = (
+                unscale * float(data_out.mip_primal_bound),
+                unscale * float(data_out.mip_dual_bound),
+            )
             self.progress.mip(data_out)
         elif kind == kinds.kCallbackSimplexInterrupt:
             self.progress.simplex(data_out)
@@ -236,7 +242,7 @@ class HighsSession:
         """Keep a copy of an improving solution."""
         x = np.array(data_out.mip_solution, dtype=np.float64)
         if x.shape == (self.n_vars,):
-            objective = float(data_out.objective_function_value)
+            objective = self.callback_unscale * float(data_out.objective_function_value)
             self.improving.append((objective, x))
             del self.improving[:-KEEP_IMPROVING]  # the most recent ones (later runs may report dearer ones)
             if self.usable is not None and objective < min(self.best_usable, self.best_unusable):

@@ -27,7 +27,14 @@ from spidermatch.model.solution import used_columns
 from spidermatch.solve.colgen import solve_column_generation
 from spidermatch.solve.plain import solve_plain
 from spidermatch.solve.rcfix import solve_reduced_cost_fixing
-from spidermatch.solve.types import ROUNDING_GAP, SolveResult, SolverOptions, Strategy, remaining
+from spidermatch.solve.types import (
+    ROUNDING_GAP,
+    SolveResult,
+    SolverOptions,
+    Strategy,
+    relative_gap,
+    remaining,
+)
 
 STRATEGIES: dict[str, Strategy] = {"plain": solve_plain, "rcfix": solve_reduced_cost_fixing}
 """Strategies that take the full model (an IlpModel)."""
@@ -88,9 +95,12 @@ def solve_with_strategy(
     if rescaled.status == "optimal":
         return replace(rescaled, wall_time=time.perf_counter() - start)
     best = rescaled if rescaled.x is not None and rescaled.objective < result.objective else result
+    # the first run's bound is what was distrusted; the costs are not negative, so 0 bounds every path
+    bound = max(rescaled.bound, 0.0) if math.isfinite(rescaled.bound) else 0.0
+    best = replace(best, bound=bound, gap=relative_gap(best.objective, bound))
     message = (
         "not certified: the costs are within HiGHS's tolerances, and the solve with scaled costs "
-        "did not prove it"
+        f"did not prove it ({rescaled.message})"
     )
     return replace(best, status="feasible", message=message, wall_time=time.perf_counter() - start)
 
