@@ -86,7 +86,7 @@ def test_path_options_hydra_would_misread_are_quoted():
 
     from spidermatch.cli.options import quoted_paths
 
-    names = ["in/ünï/形状é.off", "a (1).off", "in/a,b.off", "it's.pt", "x=y/~z.off", "plain/name.off"]
+    names = ["in/ünï/形状é.off", "a (1).off", "in/a[1].off", "it's.pt", "x=y/~z.off", "plain/name.off"]
     argv = [f"source={names[0]}", f"target={names[1]}", f"source_corr={names[2]}", f"checkpoint={names[3]}"]
     argv += [f"data.root={names[4]}", f"target_corr={names[5]}", "resolution=300"]
     quoted = quoted_paths(argv)
@@ -94,6 +94,10 @@ def test_path_options_hydra_would_misread_are_quoted():
     assert [parser.parse_override(argument).value() for argument in quoted[:6]] == names
     assert quoted[5:] == argv[5:]  # what Hydra reads as given stays as given
     assert quoted_paths(["-m", "source=a.off,b.off"]) == ["-m", "source=a.off,b.off"]  # a sweep's list
+    assert quoted_paths(["second_opinion=null", "checkpoint=null"]) == [
+        "second_opinion=null",
+        "checkpoint=null",
+    ]
 
 
 def test_a_file_run_with_a_name_hydra_cannot_read_unquoted(tmp_path):

@@ -143,20 +143,24 @@ def _quoted_path(argument: str) -> str:
     key, separator, value = argument.partition("=")
     if not separator or key.lstrip("+~") not in PATH_KEYS or value[:1] in ("'", '"') or not value:
         return argument
-    if _hydra_value(argument) == value:
-        return argument
+    read = _hydra_value(argument)
+    if read == value or (read is not _UNREADABLE and not isinstance(read, str)):
+        return argument  # read as given, or meant as null, a number, a list or a sweep: Hydra's to read
     quoted = f"{key}='" + value.replace("'", "\\'") + "'"
     return quoted if _hydra_value(quoted) == value else argument
 
 
+_UNREADABLE = object()
+
+
 def _hydra_value(argument: str):
-    """The value Hydra's override parser reads from ``argument`` (None if it cannot parse it)."""
+    """The value Hydra's override parser reads from ``argument`` (``_UNREADABLE`` if it cannot parse it)."""
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
     try:
         return OverridesParser.create().parse_override(argument).value()
     except Exception:  # any parse failure: the caller quotes or leaves the argument to Hydra's message
-        return None
+        return _UNREADABLE
 
 
 def exit_on_bad_command_line(config_name: str, argv: list[str]) -> None:
