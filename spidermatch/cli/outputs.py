@@ -99,14 +99,6 @@ class ForeignFolder(shutdown.OutputError):
     """The run folder holds files named as a run's outputs that no run wrote: nothing is written there."""
 
 
-class UserFiles(Exception):
-    """Files with the names of a run's outputs in a folder no earlier run wrote (``paths``)."""
-
-    def __init__(self, paths: list[Path]) -> None:
-        super().__init__(paths)
-        self.paths = paths
-
-
 def start_run(output_dir: Path, result_path: Path | None, report: dict) -> None:
     """Create the run folder, remove an earlier run's outputs and write a 'started' ``result.json``.
 
@@ -116,16 +108,16 @@ def start_run(output_dir: Path, result_path: Path | None, report: dict) -> None:
     try:
         output_dir.mkdir(parents=True, exist_ok=True)
         stale = [output_dir / name for name in RUN_OUTPUTS if (output_dir / name).exists()]
-        if stale and result_path is not None and not _earlier_run(output_dir):
-            raise UserFiles(stale)  # a folder of the user's own files: leave them
+        if stale and result_path is not None and not _earlier_run(output_dir):  # the user's own files
+            names = ", ".join(path.name for path in stale)
+            raise ForeignFolder(
+                f"{output_dir}: holds {names}, which no earlier spidermatch run wrote (no result.json of "
+                "one): choose another run folder (hydra.run.dir=...) or move them"
+            )
         for path in stale:
             path.unlink()
-    except UserFiles as held:
-        names = ", ".join(path.name for path in held.paths)
-        raise ForeignFolder(
-            f"{output_dir}: holds {names}, which no earlier spidermatch run wrote (no result.json of "
-            "one): choose another run folder (hydra.run.dir=...) or move them"
-        ) from None
+    except ForeignFolder:
+        raise  # an OSError too, but not one of preparing the folder
     except OSError as error:
         message = f"{output_dir}: the run folder cannot be prepared ({error.strerror})"
         raise shutdown.OutputError(message) from error

@@ -175,31 +175,50 @@ def read_off(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, list[str]
         path, [(number, tokens[:3]) for number, tokens in body[:n_verts]], np.float64, 3, "vertex"
     )
     faces, polygons = _off_faces(path, body[n_verts:])
-    notes = (
+    return verts, faces, _split_notes(path, polygons)
+
+
+def _split_notes(path: Path, polygons: int) -> list[str]:
+    """The reader's note on ``polygons`` faces of more than three corners split into triangles."""
+    return (
         [f"{path}: {polygons} faces with more than three corners were split into triangles"]
         if polygons
         else []
     )
-    return verts, faces, notes
+
+
+def _fan(corners) -> list[list]:
+    """A polygon's corners (n >= 3) as the triangles of a fan from its first corner."""
+    return [[corners[0], corners[k], corners[k + 1]] for k in range(1, len(corners) - 1)]
 
 
 def _off_faces(path: Path, lines) -> tuple[np.ndarray, int]:
     """Triangles (F, 3) of OFF face lines ``n i_1 ... i_n [colour]``, and how many polygons were split.
 
-    A polygon (n > 3) is split into a triangle fan from its first corner.
+    A polygon (n > 3) is split into a triangle fan (:func:`_fan`); the triangles' indices are
+    converted in one block.
     """
-    triangles, polygons = [], 0
-    for number, tokens in lines:
-        corners = _off_block(path, [(number, tokens[:1])], np.int64, 1, "face")[0, 0]
+    counts = _off_block(path, [(number, tokens[:1]) for number, tokens in lines], np.int64, 1, "face")[:, 0]
+    for (number, tokens), corners in zip(lines, counts):
         if corners < 3 or len(tokens) < corners + 1:
             raise MeshError(
                 f"{path}:{number}: a face line needs its corner count (at least 3) and that many indices, "
                 f"found {' '.join(tokens)!r}"
             )
-        ids = _off_block(path, [(number, tokens[1 : corners + 1])], np.int64, corners, "face")[0]
-        polygons += corners > 3
-        triangles += [[ids[0], ids[k], ids[k + 1]] for k in range(1, corners - 1)]
-    return np.array(triangles, dtype=np.int64).reshape(-1, 3), polygons
+    triangles = _off_block(
+        path, [(n, tokens[1:4]) for (n, tokens), c in zip(lines, counts) if c == 3], np.int64, 3, "face"
+    )
+    polygons = [
+        _fan(_off_block(path, [(n, tokens[1 : c + 1])], np.int64, c, "face")[0])
+        for (n, tokens), c in zip(lines, counts)
+        if c > 3
+    ]
+    if not polygons:
+        return triangles, 0
+    order = np.argsort(counts > 3, kind="stable")  # put each face's triangles back in file order
+    pieces = [[row] for row in triangles] + polygons
+    in_order = [pieces[k] for k in np.argsort(order, kind="stable")]
+    return np.array([t for piece in in_order for t in piece], dtype=np.int64).reshape(-1, 3), len(polygons)
 
 
 def _parse_plain_off(text: str) -> tuple[np.ndarray, np.ndarray] | None:
@@ -282,10 +301,8 @@ def read_obj(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, list[str]
             if len(corners) < 3:
                 raise MeshError(f"{path}:{number}: a face needs at least 3 corners, found {len(corners)}")
             polygons += len(corners) > 3
-            faces += [[corners[0], corners[k], corners[k + 1]] for k in range(1, len(corners) - 1)]
-    notes = []
-    if polygons:
-        notes.append(f"{path}: {polygons} faces with more than three corners were split into triangles")
+            faces += _fan(corners)
+    notes = _split_notes(path, polygons)
     faces_array = np.array(faces, dtype=np.int64).reshape(-1, 3)
     return np.array(verts, dtype=np.float64).reshape(-1, 3), faces_array, notes
 

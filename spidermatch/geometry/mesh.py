@@ -236,7 +236,7 @@ def validate_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") ->
 
     Checks, in order: array shapes and number types, empty mesh, non-finite coordinates,
     faces that index missing vertices, degenerate faces (repeated vertex or zero area),
-    vertices used by no face, non-manifold edges (more than two faces),
+    vertices used by no face, non-manifold edges (more than two faces; duplicate faces named as such),
     non-manifold vertices (two fans of faces meeting at one vertex, a "bowtie"),
     several connected components and a non-orientable surface (a Moebius strip). Faces
     that are only oriented inconsistently pass: :func:`make_mesh` re-orients them.
@@ -262,7 +262,6 @@ def validate_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") ->
     _check_face_indices(faces, verts.shape[0], name)
     _check_degenerate_faces(verts, faces, name)
     _check_unreferenced(faces, verts.shape[0], name)
-    _check_duplicate_faces(faces, name)
     _check_manifold_edges(faces, name)
     _check_manifold_vertices(faces, name)
     _check_single_component(faces, verts.shape[0], name)
@@ -367,6 +366,7 @@ def _check_manifold_edges(faces: np.ndarray, name: str) -> None:
     edges, _, counts = edge_face_counts(faces)
     bad = counts > 2
     if bad.any():
+        _check_duplicate_faces(faces, name)  # a copy of a face crowds its edges: named as what it is
         first = edges[bad][0]
         raise MeshError(
             f"{name}: {int(bad.sum())} non-manifold edges shared by more than two faces "
