@@ -261,6 +261,53 @@ def test_a_folder_of_the_users_own_files_is_left_alone(tmp_path):
     assert not (folder / "matches.csv").exists()
 
 
+def _match_command(folder: Path, *overrides: str) -> subprocess.CompletedProcess:
+    command = [sys.executable, "-c", "from spidermatch.cli.main import match_main; match_main()"]
+    return subprocess.run(
+        [*command, *SMALL, *overrides, f"hydra.run.dir={folder}"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=300,
+    )
+
+
+def test_the_users_own_files_are_left_alone_without_a_result_json_too(tmp_path):
+    """``output.result_json=false`` wrote over the user's ``texture.png``; now refused before the run
+    writes anything of its own there (no lock file, no ``.hydra/``)."""
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "texture.png").write_text("my picture")
+    run = _match_command(folder, "output.result_json=false", "dense.enabled=false")
+    assert run.returncode == shutdown.EXIT_OUTPUT_ERROR, run.stderr[-2000:]
+    assert "holds texture.png, which no earlier spidermatch run wrote" in run.stdout + run.stderr
+    assert (folder / "texture.png").read_text() == "my picture"
+    assert {path.name for path in folder.iterdir()} <= {"texture.png", "main.log"}  # Hydra's log aside
+
+
+def test_a_run_without_a_result_json_is_known_by_its_lock_file(tmp_path):
+    """The next run into the folder of a run with ``output.result_json=false`` removes its outputs."""
+    folder = tmp_path / "run"
+    first = _match_command(folder, "output.result_json=false")
+    assert first.returncode == 0, first.stderr[-2000:]
+    assert (folder / "dense_map.npz").is_file() and not (folder / "result.json").exists()
+    second = _match_command(folder, "dense.enabled=false", "data.source_seed=3")
+    assert second.returncode == 0, second.stderr[-2000:]
+    assert not (folder / "dense_map.npz").exists() and result_of(folder)["status"] == "optimal"
+
+
+def test_every_file_a_run_writes_is_among_the_outputs_a_next_run_removes(tmp_path):
+    """A file missing from RUN_OUTPUTS would be left from an earlier run (or written over unasked)."""
+    from spidermatch.cli.outputs import RUN_OUTPUTS
+
+    folder = tmp_path / "run"
+    overrides = ["data.n_verts=700", "resolution=60", "output.png=true", "output.viewer=true"]
+    assert run_match(config("match", [*overrides, "dense.inverse=true"]), folder) == 0
+    written = {path.name for path in folder.iterdir()}
+    assert {"texture.png", "viewer.html", "dense_inverse_matches.csv"} <= written
+    assert written - {"result.json"} <= set(RUN_OUTPUTS)
+
+
 def test_a_folder_held_by_a_live_run_is_refused(tmp_path):
     folder = tmp_path / "run"
     command = [sys.executable, "-c", "from spidermatch.cli.main import match_main; match_main()"]

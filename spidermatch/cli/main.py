@@ -14,6 +14,7 @@ from pathlib import Path
 from spidermatch import shutdown
 from spidermatch.cli.evaluate import run_eval
 from spidermatch.cli.match import run_match
+from spidermatch.cli.outputs import refuse_foreign_folder
 from spidermatch.shutdown import write_atomic
 
 logger = logging.getLogger("spidermatch.match")
@@ -49,9 +50,15 @@ def _save_run_config(cfg, hydra_cfg, output_dir: Path) -> None:
         write_atomic(folder / name, OmegaConf.to_yaml(content))
 
 
-def _held_run(run, cfg, hydra_cfg, output_dir: Path) -> int:
-    """``run(cfg, output_dir)`` with the folder locked and the configuration saved; the exit code."""
+def _held_run(run, cfg, hydra_cfg, output_dir: Path, check_folder=None) -> int:
+    """``run(cfg, output_dir)`` with the folder locked and the configuration saved; the exit code.
+
+    ``check_folder(output_dir)``, if given, may refuse the folder (an OutputError) before
+    anything is written into it.
+    """
     try:
+        if check_folder is not None:
+            check_folder(output_dir)
         with shutdown.folder_lock(output_dir):
             _save_run_config(cfg, hydra_cfg, output_dir)
             return run(cfg, output_dir)
@@ -63,7 +70,7 @@ def _held_run(run, cfg, hydra_cfg, output_dir: Path) -> int:
         return shutdown.EXIT_OUTPUT_ERROR
 
 
-def _hydra_app(run, config_name: str):
+def _hydra_app(run, config_name: str, check_folder=None):
     import hydra
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode
@@ -72,7 +79,7 @@ def _hydra_app(run, config_name: str):
     def app(cfg) -> None:
         configure_logging(cfg.log_level)
         hydra_cfg = HydraConfig.get()
-        code = _held_run(run, cfg, hydra_cfg, Path(hydra_cfg.runtime.output_dir))
+        code = _held_run(run, cfg, hydra_cfg, Path(hydra_cfg.runtime.output_dir), check_folder)
         if shutdown.native_work_abandoned():
             # a solve left running after a signal: end now (all files are written)
             logging.shutdown()
@@ -103,7 +110,7 @@ def match_main() -> None:
 
     sys.argv[1:] = file_run_overrides(quoted_paths(sys.argv[1:]))
     exit_on_bad_command_line("match", sys.argv[1:])
-    _hydra_app(run_match, "match")()
+    _hydra_app(run_match, "match", refuse_foreign_folder)()
 
 
 def eval_main() -> None:

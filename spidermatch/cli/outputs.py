@@ -85,10 +85,12 @@ RUN_OUTPUTS = (
     "matches.csv",
     "geodesic_errors.npy",
     "dense_matches.csv",
+    "dense_inverse_matches.csv",
     "dense_map.npz",
     "dense_geodesic_errors.npy",
     "correspondence.png",
     "spider_curve.png",
+    "texture.png",
     "error.png",
     "viewer.html",
 )
@@ -107,13 +109,9 @@ def start_run(output_dir: Path, result_path: Path | None, report: dict) -> None:
     """
     try:
         output_dir.mkdir(parents=True, exist_ok=True)
+        if result_path is not None:  # else nothing to tell the user's own result.json from a run's
+            refuse_foreign_folder(output_dir)
         stale = [output_dir / name for name in RUN_OUTPUTS if (output_dir / name).exists()]
-        if stale and result_path is not None and not _earlier_run(output_dir):  # the user's own files
-            names = ", ".join(path.name for path in stale)
-            raise ForeignFolder(
-                f"{output_dir}: holds {names}, which no earlier spidermatch run wrote (no result.json of "
-                "one): choose another run folder (hydra.run.dir=...) or move them"
-            )
         for path in stale:
             path.unlink()
     except ForeignFolder:
@@ -127,8 +125,25 @@ def start_run(output_dir: Path, result_path: Path | None, report: dict) -> None:
         write_atomic(result_path, json.dumps(report, indent=2) + "\n")
 
 
+def refuse_foreign_folder(output_dir: Path) -> None:
+    """Raise :class:`ForeignFolder` if ``output_dir`` holds files named as outputs that no run wrote.
+
+    Read only: called before a run writes anything into the folder (its lock, ``.hydra/``).
+    """
+    names = [name for name in RUN_OUTPUTS if (output_dir / name).exists()]
+    if names and not _earlier_run(output_dir):
+        raise ForeignFolder(
+            f"{output_dir}: holds {', '.join(names)}, which no earlier spidermatch run wrote (neither its "
+            f"{shutdown.LOCK_NAME} nor its result.json is there): choose another run folder "
+            "(hydra.run.dir=...) or move them"
+        )
+
+
 def _earlier_run(output_dir: Path) -> bool:
-    """True if the folder's ``result.json`` is a spidermatch run's (an object with its status and folder)."""
+    """True if a spidermatch run used the folder: its lock file, or its ``result.json`` (an object with
+    its status and folder; runs of versions before the lock file left only that)."""
+    if (output_dir / shutdown.LOCK_NAME).exists():
+        return True
     try:
         report = json.loads((output_dir / "result.json").read_text())
     except (OSError, ValueError):
