@@ -98,6 +98,9 @@ def test_path_options_hydra_would_misread_are_quoted():
         "second_opinion=null",
         "checkpoint=null",
     ]
+    for key in ("features.checkpoint", "name"):  # the learned features' network; eval's run folder name
+        (argument,) = quoted_paths([f"{key}={names[1]}"])
+        assert parser.parse_override(argument).value() == names[1]
 
 
 def test_a_file_run_with_a_name_hydra_cannot_read_unquoted(tmp_path):

@@ -119,8 +119,8 @@ def unknown_option_problem(config_name: str, overrides: list[str]) -> str | None
 
 
 PATH_KEYS = frozenset(
-    {"source", "target", "source_corr", "target_corr", "checkpoint", "second_opinion", "pairs_file",
-     "dataset", "data.root", "resume", "hydra.run.dir", "hydra.sweep.dir"}
+    {"source", "target", "source_corr", "target_corr", "checkpoint", "features.checkpoint", "second_opinion",
+     "pairs_file", "dataset", "data.root", "resume", "name", "hydra.run.dir", "hydra.sweep.dir"}
 )  # fmt: skip
 """Options whose values are file or folder names: quoted for Hydra when they need it."""
 
