@@ -1,6 +1,7 @@
 """Projection of full-resolution vertices onto their decimation, along the surface."""
 
 import numpy as np
+import pytest
 
 from spidermatch.geometry.coarse import (
     coarse_labels,
@@ -78,6 +79,28 @@ def test_candidates_with_repeats_and_padding_give_the_free_search_result():
     free_points = np.einsum("nk,nkd->nd", free_bary, verts[faces[free_face]])
     points_found = np.einsum("nk,nkd->nd", bary, verts[faces[face]])
     np.testing.assert_allclose(points_found, free_points, atol=1e-12)
+
+
+@pytest.mark.parametrize("pairs", [1, 7, 64])
+def test_points_searched_in_blocks_land_where_one_block_puts_them(pairs, monkeypatch):
+    """The search runs a block of points at a time (bounded memory: a 320k-vertex scan asked 7.9 M
+    point-face pairs at once); blocks of any size, cut inside a row's candidates too, change nothing."""
+    import spidermatch.geometry.surface as surface
+
+    verts, faces = grid(7, 0.0)
+    rng = np.random.default_rng(1)
+    points = np.column_stack([rng.uniform(0, 1, (50, 2)), rng.normal(0, 0.05, 50)])
+    candidates = rng.integers(-1, len(faces), (50, 9))
+    candidates[:, 0] = rng.integers(0, len(faces), 50)  # every point needs one face
+    for clip in (True, False):
+        whole = closest_triangle_points(verts, faces, points, clip=clip, candidates=candidates)
+        monkeypatch.setattr(surface, "POINT_BLOCK_PAIRS", pairs)
+        blocks = surface._point_blocks(candidates, pairs)
+        assert len(blocks) > 1 and [b.start for b in blocks[1:]] == [b.stop for b in blocks[:-1]]
+        in_blocks = closest_triangle_points(verts, faces, points, clip=clip, candidates=candidates)
+        monkeypatch.undo()
+        np.testing.assert_array_equal(in_blocks[0], whole[0])
+        np.testing.assert_array_equal(in_blocks[1], whole[1])
 
 
 def test_rings_and_label_tables_cover_their_vertices():

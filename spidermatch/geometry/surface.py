@@ -99,6 +99,27 @@ def closest_triangle_points(
         return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
     if candidates is None:
         candidates = _candidate_faces(verts, faces, points, n_candidates)
+    best_face = np.empty(len(points), dtype=np.int64)
+    bary = np.empty((len(points), 3))
+    for block in _point_blocks(candidates, POINT_BLOCK_PAIRS):
+        best_face[block], bary[block] = _closest_among_candidates(
+            verts, faces, points[block], candidates[block], clip
+        )
+    return best_face, bary
+
+
+def _point_blocks(candidates: np.ndarray, pairs: int) -> list[slice]:
+    """Consecutive row ranges of a candidate table (N, C), each with about ``pairs`` candidates (-1: none)."""
+    ends = np.cumsum((candidates >= 0).sum(axis=1))
+    cuts = np.searchsorted(ends, np.arange(pairs, int(ends[-1]), pairs), side="right")
+    bounds = np.unique(np.concatenate([[0], cuts, [len(candidates)]]))
+    return [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def _closest_among_candidates(
+    verts: np.ndarray, faces: np.ndarray, points: np.ndarray, candidates: np.ndarray, clip: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Face (N,) and barycentric coordinates (N, 3) of each point's closest candidate face (N, C)."""
     row, face = _distinct_pairs(candidates)
     paired = points[row]
     closest = _closest_points_blockwise(verts[faces[face]], paired)
@@ -118,6 +139,9 @@ def closest_triangle_points(
 
 # Triangle-point pairs per call of trimesh's closest_point (bounds its temporary arrays).
 PAIR_BLOCK = 65536
+# Candidate faces per block of points in closest_triangle_points: its pair arrays (about 200 bytes
+# a pair) stay near 50 MB however many points are asked (a 320k-vertex scan asked 7.9 M pairs at once).
+POINT_BLOCK_PAIRS = 262144
 
 
 def _distinct_pairs(candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
