@@ -140,8 +140,11 @@ def refuse_foreign_folder(output_dir: Path) -> None:
 
 
 def _earlier_run(output_dir: Path) -> bool:
-    """True if a spidermatch run used the folder: its lock file, or its ``result.json`` (an object with
-    its status and folder; runs of versions before the lock file left only that)."""
+    """True if a spidermatch run used the folder.
+
+    Its lock file is there, or its ``result.json`` (an object with its status and folder; runs
+    of versions before the lock file left only that).
+    """
     if (output_dir / shutdown.LOCK_NAME).exists():
         return True
     try:
@@ -213,10 +216,12 @@ def write_dense(
     Returns the dense map's geodesic errors (K,) at the reference points, or None without ground truth.
     """
     from spidermatch.dense.densify import certified_agreement
+    from spidermatch.dense.maps import in_given_corners
     from spidermatch.report.dense_report import dense_figures, write_dense_outputs
 
     welds = (inputs.source_weld, inputs.target_weld)
-    for path in write_dense_outputs(output_dir, result.dense, inputs.piece_of, inputs.target_of, welds):
+    as_given = in_given_corners(result.dense, inputs.source, inputs.target)
+    for path in write_dense_outputs(output_dir, as_given, inputs.piece_of, inputs.target_of, welds):
         logger.info("wrote %s", path)
     certified = certified_agreement(result.dense, inputs.target, result.source, result.target, result.low_map)
     figures, errors = dense_figures(

@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from spidermatch.geometry.holes import ClosedCopy
-from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.mesh import Mesh, bary_in_given_corners
 from spidermatch.geometry.surface import (
     closest_triangle_points,
     nearest_corner,
@@ -84,6 +84,20 @@ def inverse_map(dense: DenseMap, source: Mesh, target: Mesh) -> InverseMap:
     """
     face, bary, gap = closest_on_image_surface(dense, source, target, target.verts)
     return InverseMap(nearest_corner(source, face, bary), face, bary, gap)
+
+
+def in_given_corners(dense: DenseMap, source: Mesh, target: Mesh) -> DenseMap:
+    """``dense`` with its barycentric coordinates in the corner order the meshes' faces were given in.
+
+    The matched meshes may have faces reversed on reading (an inward-facing surface,
+    :func:`~spidermatch.geometry.mesh.make_mesh`); the files name the user's faces, so their
+    coordinates follow the user's corners: ``bary`` the target's, the inverse map's the source's.
+    """
+    bary = bary_in_given_corners(target, dense.face, dense.bary)
+    inverse = dense.inverse
+    if inverse is not None:
+        inverse = replace(inverse, bary=bary_in_given_corners(source, inverse.face, inverse.bary))
+    return replace(dense, bary=bary, inverse=inverse)
 
 
 def closest_on_image_surface(

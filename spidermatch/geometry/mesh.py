@@ -514,32 +514,70 @@ def signed_volume(verts: np.ndarray, faces: np.ndarray) -> float:
 def make_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>", notes: tuple = ()) -> Mesh:
     """Validate (verts, faces) and wrap them in a :class:`Mesh`.
 
-    Inconsistently oriented faces are reversed (the decimation and every normal need one
-    orientation): on a closed surface, or one closed but for small holes, to the outward
-    orientation, on an open one to the orientation most faces share. The mesh's ``notes``
-    (after the given ``notes``, e.g. the loader's) and the log say how many.
+    Faces are reversed where needed so that all share one orientation (the decimation and
+    every normal need one, and the matching preserves it): on a closed surface, or one closed
+    but for small holes, the outward one, also when every face faced inwards (a surface wound
+    the other way round would be matched to its mirror image); on an open one the orientation
+    most faces share. The mesh's ``notes`` (after the given ``notes``, e.g. the loader's) and
+    the log say how many.
     """
     flip = validate_mesh(verts, faces, name)
     faces = np.array(faces, dtype=np.int64)
+    faces[flip] = faces[flip][:, ::-1]
+    points = np.asarray(verts, dtype=np.float64)
+    if faces_inwards(points, faces):
+        faces, flip = faces[:, ::-1].copy(), ~flip
     notes = tuple(notes)
-    if flip.any():
-        faces[flip] = faces[flip][:, ::-1]
-        points = np.asarray(verts, dtype=np.float64)
-        if nearly_closed(points, faces) and signed_volume(points - points.mean(axis=0), faces) < 0:
-            faces, flip = faces[:, ::-1].copy(), ~flip
+    if flip.all():
+        note = (
+            f"{name}: all {len(faces)} faces faced inwards (the surface is wound the other way round); "
+            "they were reversed so that it faces outwards, else it would be matched to its mirror image"
+        )
+    elif flip.any():
         note = (
             f"{name}: {int(flip.sum())} of {len(faces)} faces were oriented against their neighbours; "
             "they were reversed so that all faces share one orientation"
         )
+    if flip.any():
         logger.warning("%s", note)
         notes += (note,)
-    mesh = Mesh(np.asarray(verts, dtype=np.float64), faces, name, notes)
+    mesh = Mesh(points, faces, name, notes)
     mesh.cached(VALIDATED, lambda: True)
+    if flip.any():
+        mesh.cached(REVERSED_FACES, lambda: flip)
     return mesh
+
+
+def faces_inwards(verts: np.ndarray, faces: np.ndarray) -> bool:
+    """True if the consistently oriented ``faces`` of a (nearly) closed surface face inwards."""
+    if signed_volume(verts - verts.mean(axis=0), faces) >= 0:
+        return False
+    return nearly_closed(verts, faces)  # an open surface encloses no volume: its sign means nothing
 
 
 VALIDATED = "validated"
 """Cache key :func:`make_mesh` sets: the mesh passed :func:`validate_mesh` with its faces as they are."""
+
+
+REVERSED_FACES = "reversed_faces"
+"""Cache key :func:`make_mesh` sets when it reversed faces: which ones, (F,) bool."""
+
+
+def bary_in_given_corners(mesh: Mesh, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates (N, 3) in ``face`` (N,) of ``mesh``, in its faces' corner order as given.
+
+    :func:`make_mesh` may have reversed faces (their corners then run the other way round):
+    their coordinates are reversed with them. Rows with ``face`` -1 (none) are left as they are.
+    """
+    reversed_faces = mesh._cache.get(REVERSED_FACES)
+    if reversed_faces is None:
+        return bary
+    face = np.asarray(face)
+    swap = np.zeros(len(face), dtype=bool)
+    swap[face >= 0] = reversed_faces[face[face >= 0]]
+    given = np.array(bary, dtype=np.float64)
+    given[swap] = given[swap][:, ::-1]
+    return given
 
 
 def is_validated(mesh: Mesh) -> bool:
