@@ -195,6 +195,8 @@ def _unchecked_mesh(shape, role: str) -> Mesh | None:
         if np.iscomplexobj(verts) or np.iscomplexobj(faces):  # refused as given; nothing to repair
             return None
         faces = np.asarray(faces)
+        if faces.ndim != 2 or faces.shape[1] != 3 or np.ndim(verts) != 2 or np.shape(verts)[1] != 3:
+            return None  # refused as given (make_mesh names the shapes it expects)
         if faces.dtype.kind == "f" and not np.array_equal(faces, np.round(faces)):
             return None  # refused as given (not vertex indices); never truncated into others
         return Mesh(np.asarray(verts, dtype=np.float64), faces.astype(np.int64), name)

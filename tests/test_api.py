@@ -119,6 +119,29 @@ def test_bad_inputs_are_clear_errors(pair, tmp_path):
         spidermatch.match(pair.source, pair.target, features=(np.ones((5, 3)), np.ones((n_y, 3))))
 
 
+@pytest.mark.parametrize("columns", [4, 2])
+def test_faces_that_are_not_triangles_are_a_clear_error(pair, columns):
+    """Quads (or pairs) as a face array crashed in the weld's numbering (a numpy ValueError)."""
+    mesh = pair.x.mesh
+    faces = mesh.faces[:, [0, 1, 2, 0][:columns]]
+    verts = np.vstack([mesh.verts, mesh.verts[:1]])  # a repeated position: the weld is tried first
+    with pytest.raises(
+        MeshError, match=rf"faces must be triangles with shape \(F, 3\), got \({mesh.n_faces}, {columns}\)"
+    ):
+        spidermatch.match((verts, faces), pair.target)
+
+
+def test_half_precision_coordinates_are_read_as_the_shape_they_are(pair, from_paths):
+    """float16 vertices were refused as thousands of "degenerate faces" (areas rounded to 0 in float16)."""
+    x, y = pair.x.mesh, pair.y.mesh  # in hundredths of their unit: areas below float16's range
+    small = spidermatch.match(
+        ((x.verts / 100).astype(np.float16), x.faces),
+        ((y.verts / 100).astype(np.float16), y.faces),
+        resolution=RESOLUTION,
+    )
+    assert small.status == from_paths.status and small.matches.shape == from_paths.matches.shape
+
+
 def test_dense_map_is_exposed_when_the_pipeline_has_one(from_paths):
     details = from_paths.details
     dense = np.arange(details.source.to_full.max() + 1)[::-1]

@@ -258,6 +258,7 @@ def validate_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") ->
     faces = np.asarray(faces)
     _check_shapes(verts, faces, name)
     _check_number_types(verts, faces, name)
+    verts = verts.astype(np.float64)  # areas of float16 (or int) coordinates would round to 0
     _check_finite(verts, name)
     _check_face_indices(faces, verts.shape[0], name)
     _check_degenerate_faces(verts, faces, name)
