@@ -93,6 +93,20 @@ def test_bad_folders_are_refused_naming_the_problem(tmp_path):
         train(folder_config(tmp_path / "empty"), tmp_path / "run3")
 
 
+def test_a_shape_too_small_for_the_loss_is_refused_before_training_naming_its_file(tmp_path):
+    """A tetrahedron in the folder passed the preparation and ended the run at whichever later step
+    first drew it ("n_fmap = 8 eigenpairs requested but the shapes have 24 and 4"), naming no file."""
+    write_meshes(tmp_path / "mine", [200, 220, 240])
+    (tmp_path / "mine" / "aa_tiny.off").write_text(
+        "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n"
+    )
+    with pytest.raises(
+        DatasetError, match=r"aa_tiny.off: 4 vertices .* too few .* needs 9 \(loss.n_fmap = 8"
+    ):
+        train(folder_config(tmp_path / "mine"), tmp_path / "run")
+    assert not (tmp_path / "run" / "last.pt").exists()
+
+
 def test_class_pairs_and_rotations():
     pairs = validation_pairs(["cat1", "dog0"], ["cat0", "cat2", "dog1", "horse0"], "class")
     assert ("cat1", "cat0") in pairs and ("cat2", "cat1") in pairs and ("dog1", "dog0") in pairs

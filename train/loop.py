@@ -509,10 +509,23 @@ def prepare_data(config: TrainConfig) -> tuple[list[TrainShape], Validation]:
         len(val_names),
         ", ".join(val_names) if len(val_names) <= 6 else f"{val_names[0]}..{val_names[-1]}",
     )
+    needed = config.loss.n_fmap + 1
+
+    def prepare_checked(shape, model, data):
+        prepared = prepare_train_shape(shape, model, data)
+        if prepared.mesh.n_verts < needed:  # the loss would fail at the first step that draws it
+            where = dataset.mesh_path(shape.name) if hasattr(dataset, "mesh_path") else shape.name
+            raise DatasetError(
+                f"{where}: {prepared.mesh.n_verts} vertices (at training resolution) are too few for the "
+                f"functional-map loss, which needs {needed} (loss.n_fmap = {config.loss.n_fmap} eigenpairs): "
+                "remove the shape from the folder"
+            )
+        return prepared
+
     shapes = prepare_shapes(
         dataset,
         train_names,
-        prepare_train_shape,
+        prepare_checked,
         config.model,
         config.data,
         "prepare training shapes",
