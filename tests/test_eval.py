@@ -57,6 +57,28 @@ def test_broken_mesh_is_reported_and_other_pairs_complete(tmp_path):
     assert (tmp_path / "collected.csv").is_file() and (tmp_path / "curves.png").is_file()
 
 
+def test_an_unwritable_summary_ends_the_eval_with_exit_6_and_no_half_files(tmp_path, monkeypatch, caplog):
+    """A full disk while the summary was written: a raw OSError traceback and exit 1, with
+    summary.json.tmp left; now exit 6 naming the file, and the same command resumes."""
+    from spidermatch import shutdown
+
+    root = write_dataset(SyntheticShapes(n_shapes=2, n_verts=700), tmp_path / "data")
+    pairs = tmp_path / "pairs.txt"
+    pairs.write_text("creature_000 creature_001\ncreature_001 creature_000\n")
+    cfg = config(SMALL + [f"dataset={root}", f"pairs_file={pairs}"])
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(shutdown.tempfile, "mkstemp", full_disk)  # every atomic write of the run
+    assert run_eval(cfg, tmp_path / "run") == shutdown.EXIT_OUTPUT_ERROR
+    assert "summary.json: cannot be written (No space left on device)" in caplog.text
+    assert not list((tmp_path / "run").glob("*.tmp*"))
+    monkeypatch.undo()
+    assert run_eval(cfg, tmp_path / "run") == 0
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["pairs_finished"] == 2
+
+
 def _finished(pairs_dir):
     """Modification times of the pairs' result.json files that are final (not 'started' or 'writing')."""
     return {

@@ -12,12 +12,12 @@ import csv
 import json
 import logging
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
 from spidermatch.data.datasets import DatasetError
+from spidermatch.shutdown import atomic_path, write_atomic
 
 logger = logging.getLogger(__name__)
 
@@ -149,20 +149,12 @@ def write_summary(run_dir: Path, rows: list[dict], n_planned: int, settings: dic
     """Write ``summary.csv`` and ``summary.json`` (atomically) and return the summary."""
     summary = summarise(rows, n_planned)
     summary["settings"] = settings
-    _atomic(run_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
-    tmp = run_dir / "summary.csv.tmp"
-    with tmp.open("w", newline="") as handle:
+    write_atomic(run_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
+    with atomic_path(run_dir / "summary.csv") as tmp, tmp.open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(SUMMARY_COLUMNS))
         writer.writeheader()
         writer.writerows(rows)
-    os.replace(tmp, run_dir / "summary.csv")
     return summary
-
-
-def _atomic(path: Path, text: str) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def collect_errors(run_dir: Path) -> np.ndarray:

@@ -163,8 +163,9 @@ def run_eval(cfg, run_dir: Path) -> int:
             "pairs": len(pairs),
             "settings_hash": key,
         }
-        rows, summary = [], write_summary(run_dir, [], len(pairs), settings)
+        rows, summary = [], {"settings": settings}
         try:
+            summary = write_summary(run_dir, [], len(pairs), settings)
             for source, target in _progress(pairs):
                 result, code = _eval_pair(cfg, run_dir, dataset, memo, key, (source, target))
                 if code in shutdown.SIGNAL_EXIT_CODES.values():
@@ -174,6 +175,9 @@ def run_eval(cfg, run_dir: Path) -> int:
                 shutdown.raise_if_stopped()  # a signal that came while a pair's files were written
         except shutdown.RunInterrupted as stop:
             return _stop_eval(run_dir, summary, "between pairs", stop.exit_code)
+        except shutdown.OutputError as error:  # e.g. a full disk: the pairs' own files say what finished
+            logger.error("%s; the same command resumes from the pairs that finished", error)
+            return shutdown.EXIT_OUTPUT_ERROR
     _plot_run(run_dir, memo.name)
     logger.info("summary: %s", json.dumps({k: summary[k] for k in ("statuses", "geodesic_error")}))
     logger.info("wrote %s and %s", run_dir / "summary.csv", run_dir / "summary.json")
