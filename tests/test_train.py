@@ -145,6 +145,18 @@ def test_resume_reproduces_the_uninterrupted_run(tmp_path, shapes):
     assert _tensors_equal(ends[0]["ema"], ends[1]["ema"])
 
 
+def test_resuming_a_checkpoint_at_or_past_the_last_step_is_refused(tmp_path, shapes):
+    """It ended with exit 0, "checkpoints in <folder>", and wrote none there (nothing to train)."""
+    run_training(tiny_config(n_steps=3), tmp_path / "first", shapes, None)
+    for n_steps in (2, 3):
+        again = tiny_config(n_steps=n_steps)
+        again.resume = str(tmp_path / "first" / "last.pt")
+        with pytest.raises(
+            CheckpointError, match=rf"already at step 3, and run.n_steps = {n_steps} leaves nothing"
+        ):
+            run_training(again, tmp_path / "second", shapes, None)
+
+
 def test_extending_a_cosine_run_on_resume_warns_that_the_schedule_restarts(tmp_path, shapes, caplog):
     """The scheduler's period comes from the checkpoint: past it the rate rises again, and the log says so."""
     config = tiny_config(n_steps=3)

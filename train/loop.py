@@ -192,6 +192,11 @@ def compatible_checkpoint(path: str | os.PathLike, config: TrainConfig) -> dict[
     differences = incompatibilities(config.to_dict(), checkpoint["config"])
     if differences:
         raise CheckpointError(f"{path}: checkpoint from an incompatible config: " + "; ".join(differences))
+    if int(checkpoint["step"]) >= config.run.n_steps:  # nothing to train: no checkpoint would be written
+        raise CheckpointError(
+            f"{path}: the checkpoint is already at step {int(checkpoint['step'])}, and run.n_steps = "
+            f"{config.run.n_steps} leaves nothing to train: give a larger run.n_steps"
+        )
     return checkpoint
 
 
