@@ -157,6 +157,32 @@ def test_resuming_a_checkpoint_at_or_past_the_last_step_is_refused(tmp_path, sha
             run_training(again, tmp_path / "second", shapes, None)
 
 
+def test_a_checkpoint_that_cannot_be_written_is_an_output_error_leaving_the_earlier_one(
+    tmp_path, shapes, monkeypatch
+):
+    """A full disk: torch's archive writer raised "[enforce fail at inline_container.cc:672] unexpected
+    pos" (exit 1) and left best.pt.partial; now an OutputError naming the file, the last checkpoint
+    intact and no partial file."""
+    from spidermatch import shutdown
+
+    config = tiny_config()
+    state = new_state(config)
+    save_checkpoint(tmp_path / "last.pt", state, config)
+    before = (tmp_path / "last.pt").read_bytes()
+
+    def full_disk(obj, path):
+        open(path, "wb").write(b"PK")  # the start of an archive, as a full disk leaves it
+        raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 2 vs 64")
+
+    monkeypatch.setattr(torch, "save", full_disk)
+    with pytest.raises(
+        shutdown.OutputError, match=r"last.pt: the checkpoint cannot be written \(\[enforce fail"
+    ):
+        save_checkpoint(tmp_path / "last.pt", state, config)
+    assert (tmp_path / "last.pt").read_bytes() == before
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["last.pt"]
+
+
 def test_extending_a_cosine_run_on_resume_warns_that_the_schedule_restarts(tmp_path, shapes, caplog):
     """The scheduler's period comes from the checkpoint: past it the rate rises again, and the log says so."""
     config = tiny_config(n_steps=3)

@@ -12,6 +12,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
+from spidermatch import shutdown
 from spidermatch.data.datasets import DatasetError
 from spidermatch.geometry.mesh import MeshError
 from train.config import TrainConfig
@@ -60,6 +61,12 @@ def train_main(cfg: DictConfig) -> float:
         kind = type(error).__name__ if not isinstance(error, (DatasetError, MeshError)) else "data"
         print(f"spidermatch-train: error ({kind}): {error}", file=sys.stderr)
         raise SystemExit(2) from error
+    except shutdown.OutputError as error:  # a checkpoint that cannot be written, e.g. a full disk
+        print(
+            f"spidermatch-train: error (output): {error}; the checkpoints written before are kept",
+            file=sys.stderr,
+        )
+        raise SystemExit(shutdown.EXIT_OUTPUT_ERROR) from error
     except KeyboardInterrupt:  # a second Ctrl-C: stop at once, without a traceback
         print(
             f"spidermatch-train: aborted at once; the last checkpoints saved are in {out_dir}",

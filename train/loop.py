@@ -17,6 +17,7 @@ Resuming restores all of it, so the next losses equal those of an uninterrupted 
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import logging
 import math
@@ -177,13 +178,37 @@ def checkpoint_dict(state: TrainingState, config: TrainConfig) -> dict[str, Any]
 
 
 def save_checkpoint(path: str | os.PathLike, state: TrainingState, config: TrainConfig) -> Path:
-    """Write the checkpoint atomically (temporary file, then rename)."""
+    """Write the checkpoint atomically (temporary file, then rename).
+
+    Raises
+    ------
+    spidermatch.shutdown.OutputError
+        It cannot be written (e.g. a full disk, which torch reports as a RuntimeError from
+        its archive writer); the file at ``path`` is left as it was and no partial file stays.
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(path.name + ".partial")
-    torch.save(checkpoint_dict(state, config), partial)
-    os.replace(partial, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        torch.save(checkpoint_dict(state, config), partial)
+        os.replace(partial, path)
+    except (OSError, RuntimeError) as error:
+        with contextlib.suppress(OSError):
+            partial.unlink()
+        reason = (
+            error.strerror if isinstance(error, OSError) and error.strerror else str(error).splitlines()[0]
+        )
+        free = _free_bytes(path.parent)
+        room = "" if free is None else f"; {free / 2**20:.1f} MiB free there"
+        raise shutdown.OutputError(f"{path}: the checkpoint cannot be written ({reason}{room})") from error
     return path
+
+
+def _free_bytes(folder: Path) -> int | None:
+    try:
+        return shutil.disk_usage(folder).free
+    except OSError:
+        return None
 
 
 def compatible_checkpoint(path: str | os.PathLike, config: TrainConfig) -> dict[str, Any]:
@@ -476,7 +501,8 @@ def _carry_best(resumed: Path, out_dir: Path) -> None:
     best = resumed.parent / "best.pt"
     if best.is_file() and best.resolve() != (out_dir / "best.pt").resolve():
         out_dir.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(best, out_dir / "best.pt")
+        with shutdown.atomic_path(out_dir / "best.pt") as tmp:  # OutputError naming it if it cannot be
+            shutil.copyfile(best, tmp)
 
 
 def _rebase_best(state: TrainingState, criterion: str) -> None:
