@@ -50,8 +50,9 @@ def test_broken_mesh_is_reported_and_other_pairs_complete(tmp_path):
     failure = summary["failures"][0]
     assert failure["source"] == "creature_002" and "creature_002.off" in failure["reason"]
     assert summary["geodesic_error"]["n"] == 2
+    assert sum(summary["quality"].values()) == 2  # the verdicts of the two matched pairs
     csv_lines = (tmp_path / "run" / "summary.csv").read_text().splitlines()
-    assert len(csv_lines) == 4
+    assert len(csv_lines) == 4 and csv_lines[0].startswith("source,target,resolution,features,status,quality,")
     assert (tmp_path / "run" / "errors.png").is_file()
     collect_main([str(tmp_path)])
     assert (tmp_path / "collected.csv").is_file() and (tmp_path / "curves.png").is_file()
@@ -77,6 +78,17 @@ def test_an_unwritable_summary_ends_the_eval_with_exit_6_and_no_half_files(tmp_p
     monkeypatch.undo()
     assert run_eval(cfg, tmp_path / "run") == 0
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["pairs_finished"] == 2
+
+
+def test_an_eval_whose_every_pair_failed_does_not_exit_0(tmp_path):
+    """Every pair's mesh broken: the eval ended with exit 0, as if it had succeeded."""
+    root = write_dataset(SyntheticShapes(n_shapes=2, n_verts=700), tmp_path / "data")
+    (root / "off" / "creature_001.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 9\n")
+    pairs = tmp_path / "pairs.txt"
+    pairs.write_text("creature_000 creature_001\ncreature_001 creature_000\n")
+    cfg = config(SMALL + [f"dataset={root}", f"pairs_file={pairs}"])
+    assert run_eval(cfg, tmp_path / "run") == 2  # the pairs' own exit code: bad input
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["statuses"] == {"input_error": 2}
 
 
 def _finished(pairs_dir):

@@ -27,6 +27,7 @@ SUMMARY_COLUMNS = (
     "resolution",
     "features",
     "status",
+    "quality",
     "gap",
     "objective",
     "bound",
@@ -42,6 +43,7 @@ SUMMARY_COLUMNS = (
     "dense_s",
     "reason",
 )
+MATCHED = ("optimal", "feasible")  # statuses of a pair with a matching
 # summary.csv column -> (result.json "dense" entry, figure); see spidermatch.report.dense_report.
 DENSE_COLUMNS = {
     f"{short}_{figure}": (entry, "geodesic_error" if figure == "error" else figure)
@@ -96,6 +98,7 @@ def summary_row(source: str, target: str, result: dict) -> dict:
         "resolution": result.get("resolution"),
         "features": result.get("features"),
         "status": result.get("status"),
+        "quality": (result.get("quality") or {}).get("verdict"),
         "gap": result.get("gap"),
         "objective": result.get("objective"),
         "bound": result.get("bound"),
@@ -127,11 +130,15 @@ def summarise(rows: list[dict], n_planned: int) -> dict:
     statuses: dict[str, int] = {}
     for row in rows:
         statuses[row["status"]] = statuses.get(row["status"], 0) + 1
-    succeeded = [r for r in rows if r["status"] in ("optimal", "feasible")]
+    succeeded = [r for r in rows if r["status"] in MATCHED]
+    verdicts: dict[str, int] = {}
+    for row in succeeded:
+        verdicts[str(row.get("quality"))] = verdicts.get(str(row.get("quality")), 0) + 1
     return {
         "pairs_planned": n_planned,
         "pairs_finished": len(rows),
         "statuses": statuses,
+        "quality": verdicts,  # the quality verdicts of the matched pairs (spidermatch.quality)
         "geodesic_error": _stats([r["geodesic_error"] for r in succeeded]),
         "solve_s": _stats([r["solve_s"] for r in succeeded]),
         "total_s": _stats([r["total_s"] for r in rows]),
@@ -140,7 +147,7 @@ def summarise(rows: list[dict], n_planned: int) -> dict:
         "failures": [
             {"source": r["source"], "target": r["target"], "status": r["status"], "reason": r["reason"]}
             for r in rows
-            if r["status"] not in ("optimal", "feasible")
+            if r["status"] not in MATCHED
         ],
     }
 

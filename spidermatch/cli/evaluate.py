@@ -163,7 +163,7 @@ def run_eval(cfg, run_dir: Path) -> int:
             "pairs": len(pairs),
             "settings_hash": key,
         }
-        rows, summary = [], {"settings": settings}
+        rows, codes, summary = [], [], {"settings": settings}
         try:
             summary = write_summary(run_dir, [], len(pairs), settings)
             for source, target in _progress(pairs):
@@ -171,6 +171,7 @@ def run_eval(cfg, run_dir: Path) -> int:
                 if code in shutdown.SIGNAL_EXIT_CODES.values():
                     return _stop_eval(run_dir, summary, f"{source} -> {target}", code)
                 rows.append(summary_row(source, target, result))
+                codes.append(int(result.get("exit_code", code)))
                 summary = write_summary(run_dir, rows, len(pairs), settings)
                 shutdown.raise_if_stopped()  # a signal that came while a pair's files were written
         except shutdown.RunInterrupted as stop:
@@ -179,9 +180,23 @@ def run_eval(cfg, run_dir: Path) -> int:
             logger.error("%s; the same command resumes from the pairs that finished", error)
             return shutdown.EXIT_OUTPUT_ERROR
     _plot_run(run_dir, memo.name)
-    logger.info("summary: %s", json.dumps({k: summary[k] for k in ("statuses", "geodesic_error")}))
+    logger.info("summary: %s", json.dumps({k: summary[k] for k in ("statuses", "quality", "geodesic_error")}))
     logger.info("wrote %s and %s", run_dir / "summary.csv", run_dir / "summary.json")
-    return 0
+    return no_matching_code(rows, codes)
+
+
+def no_matching_code(rows: list[dict], codes: list[int]) -> int:
+    """0 if any pair was matched (or none was asked); else the first pair's exit code (``codes``).
+
+    An eval whose every pair failed (a broken folder, a time limit too short for all) must not
+    look like a success to a script.
+    """
+    from spidermatch.cli.batch import MATCHED
+
+    if not rows or any(row["status"] in MATCHED for row in rows):
+        return 0
+    logger.error("no pair was matched; the first: %s", rows[0].get("reason") or rows[0]["status"])
+    return codes[0] or 1
 
 
 def _progress(pairs):
