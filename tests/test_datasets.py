@@ -38,8 +38,13 @@ def test_write_and_read_folder_round_trip(tmp_path):
     pairs_file = tmp_path / "pairs.txt"
     pairs_file.write_text("# pairs\ncreature_000 creature_001\ncreature_001,creature_000\n")
     assert folder.pairs(pairs_file) == [("creature_000", "creature_001"), ("creature_001", "creature_000")]
+    pairs_file.write_text("creature_000.off creature_001.OFF\n")  # file names as a user lists them
+    assert folder.pairs(pairs_file) == [("creature_000", "creature_001")]
     pairs_file.write_text("creature_000 nobody\n")
     with pytest.raises(DatasetError, match="pairs.txt:1: unknown shape 'nobody'"):
+        folder.pairs(pairs_file)
+    pairs_file.write_text("creature_000 nobody.off\n")
+    with pytest.raises(DatasetError, match="pairs.txt:1: unknown shape 'nobody.off'"):
         folder.pairs(pairs_file)
     flat = ShapeFolder(tmp_path / "off")  # the meshes may also lie in the folder itself
     assert flat.names == shapes.names and flat.load("creature_000").corr is None

@@ -82,10 +82,19 @@ def checked_pair(fields: list[str], known: set[str], where: str) -> tuple[str, s
     """
     if len(fields) != 2 or not all(fields):
         raise DatasetError(f"{where}: expected two shape names, got {' '.join(fields)!r}")
-    missing = [name for name in fields if name not in known]
+    names = [_shape_name(field, known) for field in fields]
+    missing = [field for field, name in zip(fields, names) if name not in known]
     if missing:
         raise DatasetError(f"{where}: unknown shape {missing[0]!r}")
-    return fields[0], fields[1]
+    return names[0], names[1]
+
+
+def _shape_name(field: str, known: set[str]) -> str:
+    """``field`` as a shape name: a known name, or a mesh file name (``tr_reg_070.off``) of one."""
+    path = Path(field)
+    if field not in known and path.suffix.lower() in MESH_SUFFIXES and path.stem in known:
+        return path.stem
+    return field
 
 
 def mesh_files(folder: Path) -> dict[str, Path]:
