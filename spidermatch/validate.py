@@ -257,15 +257,23 @@ def tour_problem(tour, name: str) -> str | None:
     return f"{name}={show(tour)}: choose from {', '.join(TOUR_SETTINGS)}"
 
 
-def check_ground_truth(source_corr, target_corr, source_name: str, target_name: str) -> None:
-    """Ground-truth files of a pair must have the same number of points (row k corresponds)."""
-    if source_corr is None or target_corr is None:
-        return
-    if len(source_corr) != len(target_corr):
+def check_ground_truth(source_corr, target_corr, source_name: str, target_name: str) -> list[str]:
+    """Ground-truth files of a pair must have the same number of points (row k corresponds).
+
+    Returns the warnings: with only one of the two given (a missing ``.vts`` file in a dataset)
+    no error can be measured, and the warning (logged too) says which file is missing.
+    """
+    if (source_corr is None) != (target_corr is None):
+        missing, other = (source_name, target_name) if source_corr is None else (target_name, source_name)
+        warning = f"{missing} is missing ({other} is there): the pair's error is not measured"
+        logger.warning("%s", warning)
+        return [warning]
+    if source_corr is not None and len(source_corr) != len(target_corr):
         raise MeshError(
             f"ground-truth files of different lengths: {source_name} has {len(source_corr)} points, "
             f"{target_name} has {len(target_corr)} (row k of the two files must correspond)"
         )
+    return []
 
 
 def coarseness_warnings(meshes: tuple[Mesh, ...], resolution: int) -> list[str]:

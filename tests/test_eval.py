@@ -52,7 +52,9 @@ def test_broken_mesh_is_reported_and_other_pairs_complete(tmp_path):
     assert summary["geodesic_error"]["n"] == 2
     assert sum(summary["quality"].values()) == 2  # the verdicts of the two matched pairs
     csv_lines = (tmp_path / "run" / "summary.csv").read_text().splitlines()
-    assert len(csv_lines) == 4 and csv_lines[0].startswith("source,target,resolution,features,status,quality,")
+    assert len(csv_lines) == 4 and csv_lines[0].startswith(
+        "source,target,resolution,features,status,quality,"
+    )
     assert (tmp_path / "run" / "errors.png").is_file()
     collect_main([str(tmp_path)])
     assert (tmp_path / "collected.csv").is_file() and (tmp_path / "curves.png").is_file()
@@ -89,6 +91,19 @@ def test_an_eval_whose_every_pair_failed_does_not_exit_0(tmp_path):
     cfg = config(SMALL + [f"dataset={root}", f"pairs_file={pairs}"])
     assert run_eval(cfg, tmp_path / "run") == 2  # the pairs' own exit code: bad input
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["statuses"] == {"input_error": 2}
+
+
+def test_a_missing_ground_truth_file_is_named_in_the_pair_s_warnings(tmp_path):
+    """One .vts file missing: the pair's error was left out of the summary without a word."""
+    root = write_dataset(SyntheticShapes(n_shapes=2, n_verts=700), tmp_path / "data")
+    (root / "corres" / "creature_001.vts").unlink()
+    pairs = tmp_path / "pairs.txt"
+    pairs.write_text("creature_000 creature_001\n")
+    assert run_eval(config(SMALL + [f"dataset={root}", f"pairs_file={pairs}"]), tmp_path / "run") == 0
+    result = json.loads(
+        (tmp_path / "run" / "pairs" / "creature_000__creature_001" / "result.json").read_text()
+    )
+    assert any("creature_001.vts is missing" in warning for warning in result["warnings"]), result["warnings"]
 
 
 def _finished(pairs_dir):

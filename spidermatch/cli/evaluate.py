@@ -208,18 +208,22 @@ def _progress(pairs):
 def _dataset_inputs(dataset, source: str, target: str, resolution: int) -> MatchInputs:
     x, y = dataset.load(source), dataset.load(target)
     if hasattr(dataset, "corr_path"):
-        check_ground_truth(x.corr, y.corr, dataset.corr_path(source), dataset.corr_path(target))
+        notes = check_ground_truth(
+            x.corr, y.corr, str(dataset.corr_path(source)), str(dataset.corr_path(target))
+        )
     else:
-        check_ground_truth(x.corr, y.corr, f"{source} ground truth", f"{target} ground truth")
+        notes = check_ground_truth(x.corr, y.corr, f"{source} ground truth", f"{target} ground truth")
+    both = x.corr is not None and y.corr is not None  # one alone measures nothing (and was logged)
     return MatchInputs(
         x.mesh,
         y.mesh,
-        x.corr,
-        y.corr,
+        x.corr if both else None,
+        y.corr if both else None,
         int(resolution),
         f"{source} -> {target}",
         source_weld=x.weld,  # files of soups: outputs name their own vertices
         target_weld=y.weld,
+        notes=tuple(notes),
     )
 
 

@@ -54,6 +54,7 @@ class MatchInputs:
     # a user's mesh with repeated vertices, matched welded (the files name the file's vertices)
     source_weld: Weld | None = None
     target_weld: Weld | None = None
+    notes: tuple = ()  # what reading the inputs found, for the report's warnings (e.g. a missing .vts)
 
 
 def load_inputs(cfg) -> MatchInputs:
@@ -144,7 +145,7 @@ def check_inputs(cfg, inputs: MatchInputs, report: dict) -> MatchInputs:
     report's warnings. Returns ``inputs``, marked ``partial`` when the source is a part of
     the target (``report["pair"]`` says how the pair is matched and why).
     """
-    repairs = [*inputs.source.notes, *inputs.target.notes]
+    repairs = [*inputs.notes, *inputs.source.notes, *inputs.target.notes]
     if repairs:
         report.setdefault("warnings", []).extend(repairs)
     kind = checked_pair_kind(cfg, inputs, report)
