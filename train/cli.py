@@ -53,6 +53,7 @@ def train_main(cfg: DictConfig) -> float:
     Returns the best selection figure: the validation error (mean normalised geodesic
     error) when the validation shapes have ground truth, else the label-free loss.
     """
+    logging.raiseExceptions = False  # a log file on a full disk drops records instead of printing tracebacks
     config = to_train_config(cfg)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
