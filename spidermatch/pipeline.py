@@ -922,7 +922,8 @@ def _opinion(result: MatchResult) -> dict:
 
 def _log_quality(quality: dict) -> None:
     log = logger.warning if quality["verdict"] == "suspect" else logger.info
-    log("quality: %s%s", quality["verdict"], "".join(f"; {r}" for r in quality["reasons"]))
+    said = quality["reasons"] or quality.get("unjudged", [])
+    log("quality: %s%s", quality["verdict"], "".join(f"; {r}" for r in said))
 
 
 def _judged_with_dense_map(result: MatchResult, source: Mesh, target: Mesh, dense: DenseMap) -> None:

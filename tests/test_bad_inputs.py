@@ -774,6 +774,15 @@ def test_distortion_counts_distances_a_map_changes_whatever_the_unit():
     holed_dense = DenseMap(scrambled_on_holed, *vertex_points(holed, scrambled_on_holed), "test")
     assert dense_figures(holed, holed, holed_dense)["dense_distortion"] is None
     assert not any("geodesic" in r for r in holed_verdict["reasons"])
+    # ... and a verdict there says what it cannot tell (a wrong partial=both map was called plausible)
+    assert holed_verdict["unjudged"] and "not judged" in holed_verdict["unjudged"][0]
+    assert assess(source, source, identity, 1e-4)["unjudged"] == []  # a closed target: all judged
+    from spidermatch.cli.outputs import final_line
+
+    line = final_line(
+        {"status": "optimal", "quality": {**holed_verdict, "verdict": "plausible", "reasons": []}}, 0
+    )
+    assert "quality plausible (a region laid onto the wrong part of the target is not judged" in line
 
 
 def test_every_run_ends_with_one_summary_line(tmp_path, caplog):

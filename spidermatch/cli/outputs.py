@@ -68,9 +68,8 @@ def final_line(report: dict, code: int) -> str:
         parts.append(f"gap {report['gap']:.1e}")
     quality = report.get("quality")
     if quality:
-        parts.append(
-            f"quality {quality['verdict']}" + (f" ({quality['reasons'][0]})" if quality["reasons"] else "")
-        )
+        said = quality["reasons"] or (quality.get("unjudged") if quality["verdict"] == "plausible" else None)
+        parts.append(f"quality {quality['verdict']}" + (f" ({said[0]})" if said else ""))
     if report.get("geodesic_error"):
         error = f"mean geodesic error {report['geodesic_error']['mean']:.4f}"
         dense = (report.get("dense") or {}).get("dense", {}).get("geodesic_error")
