@@ -80,7 +80,9 @@ class Matching:
     dense : spidermatch.dense.densify.DenseMap or None
         The dense map in point-on-surface form (target face and barycentric coordinates); with
         ``partial="both"`` or a repaired source, of the matched piece's vertices
-        (``details.source``), in their order.
+        (``details.source``), in their order. The coordinates follow the corners of the faces as
+        matched: a mesh whose faces faced inwards had them reversed (its warning says so), and
+        ``dense_map.npz`` of the command line converts them to the file's own corner order.
     status : str
         "optimal" (certified within ``mip_rel_gap``), "feasible" (stopped early with a
         matching that is not proven optimal), "infeasible", "no_solution" or "error".

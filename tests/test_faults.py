@@ -107,7 +107,9 @@ def test_01_eval_reruns_pairs_of_other_settings_and_changed_inputs(tmp_path, sma
     mesh_file = small_dataset / "off" / "creature_001.off"
     good = mesh_file.read_text()
     mesh_file.write_text(good.replace("OFF", "OFF\n# broken", 1).rsplit("\n3 ", 3)[0] + "\n")
-    assert run_eval(eval_config(small_dataset, tmp_path, "resolution=48"), run_dir) == 0
+    assert (
+        run_eval(eval_config(small_dataset, tmp_path, "resolution=48"), run_dir) == 2
+    )  # its only pair failed
     assert result_of(pair)["status"] == "input_error"
     mesh_file.write_text(good)
     assert run_eval(eval_config(small_dataset, tmp_path, "resolution=48"), run_dir) == 0
