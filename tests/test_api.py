@@ -117,6 +117,9 @@ def test_bad_inputs_are_clear_errors(pair, tmp_path):
     n_x, n_y = pair.x.mesh.n_verts, pair.y.mesh.n_verts
     with pytest.raises(ValueError, match=rf"source features must have shape \({n_x}, D\)"):
         spidermatch.match(pair.source, pair.target, features=(np.ones((5, 3)), np.ones((n_y, 3))))
+    varied = np.random.default_rng(0).normal(size=(n_x, 3))  # constant features (a broken network's
+    with pytest.raises(ValueError, match="target features of .* are the same at every vertex"):  # zeros)
+        spidermatch.match(pair.source, pair.target, features=(varied, np.zeros((n_y, 3))))
 
 
 @pytest.mark.parametrize("columns", [4, 2])
