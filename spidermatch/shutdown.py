@@ -385,3 +385,18 @@ def write_result(path: Path, report: dict) -> bool:
         logger.error("%s; no result file was written", error)
         return False
     return True
+
+
+def quiet_file_logs() -> None:
+    """Let the root logger's file handlers drop a record they cannot write (a full disk) quietly.
+
+    Python's default prints '--- Logging error ---' and a traceback to the console for every
+    such record; the run's own error already says what failed. Console handlers keep the default.
+    """
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, logging.FileHandler):
+            handler.handleError = _drop_record
+
+
+def _drop_record(record: logging.LogRecord) -> None:
+    """A log record a file handler could not write: dropped (see :func:`quiet_file_logs`)."""

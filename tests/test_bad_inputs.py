@@ -146,6 +146,23 @@ def test_a_part_facing_inwards_is_turned_outwards_and_one_facing_outwards_is_lef
     assert len(turned.notes) == 1 and f"all {part.n_faces} faces faced inwards" in turned.notes[0]
 
 
+def test_a_part_cut_from_a_turned_mesh_keeps_which_faces_were_reversed_and_a_decimation_its_parent_s():
+    """partial=both matches a piece cut from the source (kept_part): its inverse map's coordinates must
+    follow the file's corners too. A decimated mesh keeps its parent's orientation (outward=False)."""
+    from spidermatch.geometry.mesh import bary_in_given_corners, reversed_faces_of
+    from spidermatch.geometry.partial import kept_part
+
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    turned = make_mesh(sphere.vertices, sphere.faces[:, ::-1], "inward")
+    lower = sphere.vertices[sphere.faces].mean(axis=1)[:, 2] < 0.3
+    piece = kept_part(turned, lower, "piece", "plane").mesh
+    assert reversed_faces_of(piece) is not None and reversed_faces_of(piece).all()
+    bary = np.array([[0.7, 0.2, 0.1]])
+    np.testing.assert_array_equal(bary_in_given_corners(piece, np.array([0]), bary), bary[:, ::-1])
+    kept = make_mesh(sphere.vertices, sphere.faces[:, ::-1], "as given", outward=False)
+    assert np.array_equal(kept.faces, sphere.faces[:, ::-1]) and kept.notes == ()
+
+
 def test_eval_over_a_folder_with_a_flipped_mesh_finishes_every_pair(tmp_path):
     root = write_dataset(SyntheticShapes(n_shapes=3, n_verts=600), tmp_path / "data")
     path = root / "off" / "creature_001.off"

@@ -101,27 +101,27 @@ def test_learned_features_need_a_usable_checkpoint(tmp_path):
     assert "nope.pt: no such checkpoint" in json.loads((tmp_path / "b" / "result.json").read_text())["error"]
 
 
-def test_a_log_file_that_cannot_be_written_prints_no_logging_tracebacks(monkeypatch, capsys):
+def test_a_log_file_that_cannot_be_written_prints_no_logging_tracebacks(tmp_path, capsys):
     """On a full disk the run folder's log file failed every record with '--- Logging error ---' and a
-    traceback on the console; the command line drops such records quietly (the run's error says why)."""
+    traceback on the console; the command line lets that file drop such records quietly (the run's
+    error says why), while a console handler keeps Python's default."""
     import logging
 
     from spidermatch.cli.main import configure_logging
 
-    class FullDisk(logging.Handler):
+    class FullDisk(logging.FileHandler):  # as Hydra's main.log on a full disk
         def emit(self, record):
             try:
                 raise OSError(28, "No space left on device")
             except OSError:
                 self.handleError(record)
 
-    monkeypatch.setattr(logging, "raiseExceptions", True)  # Python's default; restored after the test
-    logger = logging.getLogger("spidermatch.test_full_disk")
-    handler = FullDisk()
-    logger.addHandler(handler)
+    root = logging.getLogger()
+    handler = FullDisk(tmp_path / "main.log", delay=True)
+    root.addHandler(handler)
     try:
         configure_logging("INFO")
-        logger.warning("a record")
+        logging.getLogger("spidermatch.test_full_disk").warning("a record")
     finally:
-        logger.removeHandler(handler)
+        root.removeHandler(handler)
     assert "Logging error" not in capsys.readouterr().err

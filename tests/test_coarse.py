@@ -84,7 +84,7 @@ def test_candidates_with_repeats_and_padding_give_the_free_search_result():
 @pytest.mark.parametrize("pairs", [1, 7, 64])
 def test_points_searched_in_blocks_land_where_one_block_puts_them(pairs, monkeypatch):
     """The search runs a block of points at a time (bounded memory: a 320k-vertex scan asked 7.9 M
-    point-face pairs at once); blocks of any size, cut inside a row's candidates too, change nothing."""
+    point-face pairs at once); blocks of any size (a block holds whole rows) change nothing."""
     import spidermatch.geometry.surface as surface
 
     verts, faces = grid(7, 0.0)

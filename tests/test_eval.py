@@ -70,15 +70,23 @@ def test_an_unwritable_summary_ends_the_eval_with_exit_6_and_no_half_files(tmp_p
     pairs.write_text("creature_000 creature_001\ncreature_001 creature_000\n")
     cfg = config(SMALL + [f"dataset={root}", f"pairs_file={pairs}"])
 
-    def full_disk(*args, **kwargs):
-        raise OSError(28, "No space left on device")
+    real_mkstemp, calls = shutdown.tempfile.mkstemp, []
 
-    monkeypatch.setattr(shutdown.tempfile, "mkstemp", full_disk)  # every atomic write of the run
+    def full_after_the_first_pair(*args, **kwargs):  # the disk fills while the first pair is written
+        calls.append(kwargs.get("prefix"))
+        if calls.count(".summary.") > 2:  # after the first summary.json and summary.csv
+            raise OSError(28, "No space left on device")
+        return real_mkstemp(*args, **kwargs)
+
+    monkeypatch.setattr(shutdown.tempfile, "mkstemp", full_after_the_first_pair)
     assert run_eval(cfg, tmp_path / "run") == shutdown.EXIT_OUTPUT_ERROR
     assert "summary.json: cannot be written (No space left on device)" in caplog.text
     assert not list((tmp_path / "run").glob("*.tmp*"))
     monkeypatch.undo()
-    assert run_eval(cfg, tmp_path / "run") == 0
+    caplog.clear()
+    with caplog.at_level("INFO", logger="spidermatch"):
+        assert run_eval(cfg, tmp_path / "run") == 0
+    assert "skipping finished pair creature_000 -> creature_001" in caplog.text  # resumed, not redone
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["pairs_finished"] == 2
 
 

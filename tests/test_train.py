@@ -182,6 +182,14 @@ def test_a_checkpoint_that_cannot_be_written_is_an_output_error_leaving_the_earl
     assert (tmp_path / "last.pt").read_bytes() == before
     assert sorted(path.name for path in tmp_path.iterdir()) == ["last.pt"]
 
+    def a_bug(obj, path):
+        raise RuntimeError("expected a tensor, got a list")  # not a write failure: shown as it is
+
+    monkeypatch.setattr(torch, "save", a_bug)
+    with pytest.raises(RuntimeError, match="expected a tensor"):
+        save_checkpoint(tmp_path / "last.pt", state, config)
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["last.pt"]
+
 
 def test_extending_a_cosine_run_on_resume_warns_that_the_schedule_restarts(tmp_path, shapes, caplog):
     """The scheduler's period comes from the checkpoint: past it the rate rises again, and the log says so."""

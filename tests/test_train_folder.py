@@ -101,10 +101,13 @@ def test_a_shape_too_small_for_the_loss_is_refused_before_training_naming_its_fi
         "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n"
     )
     with pytest.raises(
-        DatasetError, match=r"aa_tiny.off: 4 vertices .* too few .* needs 9 \(loss.n_fmap = 8"
+        DatasetError, match=r"aa_tiny.off: 4 vertices .* give 4 eigenpairs, fewer .*n_fmap = 8"
     ):
         train(folder_config(tmp_path / "mine"), tmp_path / "run")
     assert not (tmp_path / "run" / "last.pt").exists()
+    (tmp_path / "mine" / "aa_tiny.off").rename(tmp_path / "mine" / "creature_002b.off")  # now held out
+    with pytest.raises(DatasetError, match=r"creature_002b.off: 4 vertices .* give 4 eigenpairs"):
+        train(folder_config(tmp_path / "mine"), tmp_path / "run")
 
 
 def test_class_pairs_and_rotations():

@@ -53,7 +53,7 @@ def train_main(cfg: DictConfig) -> float:
     Returns the best selection figure: the validation error (mean normalised geodesic
     error) when the validation shapes have ground truth, else the label-free loss.
     """
-    logging.raiseExceptions = False  # a log file on a full disk drops records instead of printing tracebacks
+    shutdown.quiet_file_logs()  # a log file on a full disk drops records instead of printing tracebacks
     config = to_train_config(cfg)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
@@ -62,7 +62,7 @@ def train_main(cfg: DictConfig) -> float:
         kind = type(error).__name__ if not isinstance(error, (DatasetError, MeshError)) else "data"
         print(f"spidermatch-train: error ({kind}): {error}", file=sys.stderr)
         raise SystemExit(2) from error
-    except shutdown.OutputError as error:  # a checkpoint that cannot be written, e.g. a full disk
+    except OSError as error:  # a checkpoint or log that cannot be written, e.g. a full disk (OutputError)
         print(
             f"spidermatch-train: error (output): {error}; the checkpoints written before are kept",
             file=sys.stderr,

@@ -20,7 +20,7 @@ from tqdm.auto import tqdm
 from features.diffusion_net import DiffusionNet, ModelConfig, ShapeInput, prepare_shape
 from features.orientation import Orientation, OrientationSearch, oriented_outputs
 from features.wks import normalise_rows
-from spidermatch.data.datasets import Shape, ShapeFolder, SyntheticShapes, open_dataset
+from spidermatch.data.datasets import DatasetError, Shape, ShapeFolder, SyntheticShapes, open_dataset
 from spidermatch.geometry.geodesics import GeodesicDistances
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.partial import CUT_KINDS, PartialShape, random_cut
@@ -239,6 +239,26 @@ def prepare_train_shape(shape: Shape, model: ModelConfig, config: DataConfig) ->
     partials = partial_inputs(mesh, shape.name, model, config)
     whole = prepare_shape(mesh, model, use_cache=config.use_cache)
     return TrainShape(shape.name, whole, corr, mesh, partials)
+
+
+def check_fmap_room(prepared: TrainShape, n_fmap: int, dataset) -> TrainShape:
+    """``prepared`` if its operators hold the ``n_fmap`` eigenpairs the functional-map loss takes.
+
+    Raises
+    ------
+    DatasetError
+        Naming the shape's file: the loss would otherwise fail at whichever later step first
+        draws the shape (a training shape) or at the first validation (a held-out one).
+    """
+    eigenpairs = prepared.input.ops.k
+    if eigenpairs < n_fmap:
+        where = dataset.mesh_path(prepared.name) if hasattr(dataset, "mesh_path") else prepared.name
+        raise DatasetError(
+            f"{where}: {prepared.mesh.n_verts} vertices (at training resolution) give {eigenpairs} "
+            f"eigenpairs, fewer than the functional-map loss takes (loss.n_fmap = {n_fmap}): remove the "
+            "shape from the folder"
+        )
+    return prepared
 
 
 def partial_inputs(mesh: Mesh, name: str, model: ModelConfig, config: DataConfig) -> tuple[PartialInput, ...]:

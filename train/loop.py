@@ -46,6 +46,7 @@ from train.config import TrainConfig, incompatibilities
 from train.data import (
     PartialInput,
     TrainShape,
+    check_fmap_room,
     open_shapes,
     prepare_shapes,
     prepare_train_shape,
@@ -177,6 +178,10 @@ def checkpoint_dict(state: TrainingState, config: TrainConfig) -> dict[str, Any]
     }
 
 
+TORCH_WRITE_FAILURES = ("inline_container", "PytorchStreamWriter", "unexpected pos")
+"""Marks of torch's archive writer failing to write (it raises a RuntimeError, e.g. on a full disk)."""
+
+
 def save_checkpoint(path: str | os.PathLike, state: TrainingState, config: TrainConfig) -> Path:
     """Write the checkpoint atomically (temporary file, then rename).
 
@@ -195,6 +200,8 @@ def save_checkpoint(path: str | os.PathLike, state: TrainingState, config: Train
     except (OSError, RuntimeError) as error:
         with contextlib.suppress(OSError):
             partial.unlink()
+        if isinstance(error, RuntimeError) and not any(mark in str(error) for mark in TORCH_WRITE_FAILURES):
+            raise  # not the archive writer's: a bug, shown as it is
         reason = (
             error.strerror if isinstance(error, OSError) and error.strerror else str(error).splitlines()[0]
         )
@@ -540,18 +547,9 @@ def prepare_data(config: TrainConfig) -> tuple[list[TrainShape], Validation]:
         len(val_names),
         ", ".join(val_names) if len(val_names) <= 6 else f"{val_names[0]}..{val_names[-1]}",
     )
-    needed = config.loss.n_fmap + 1
 
-    def prepare_checked(shape, model, data):
-        prepared = prepare_train_shape(shape, model, data)
-        if prepared.mesh.n_verts < needed:  # the loss would fail at the first step that draws it
-            where = dataset.mesh_path(shape.name) if hasattr(dataset, "mesh_path") else shape.name
-            raise DatasetError(
-                f"{where}: {prepared.mesh.n_verts} vertices (at training resolution) are too few for the "
-                f"functional-map loss, which needs {needed} (loss.n_fmap = {config.loss.n_fmap} eigenpairs): "
-                "remove the shape from the folder"
-            )
-        return prepared
+    def prepare_checked(shape, model, data):  # a shape too small for the loss: refused before step 1
+        return check_fmap_room(prepare_train_shape(shape, model, data), config.loss.n_fmap, dataset)
 
     shapes = prepare_shapes(
         dataset,

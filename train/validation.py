@@ -272,12 +272,16 @@ def label_free_validator(
 
     ``known`` maps names to already prepared training shapes; the others are prepared here.
     """
-    from train.data import prepare_train_shape
+    from train.data import check_fmap_room, prepare_train_shape
 
     chosen = evenly_spaced(pairs, config.data.label_free_pairs)
     names = list(dict.fromkeys(name for pair in chosen for name in pair))
     shapes = [
-        known[name] if name in known else prepare_train_shape(dataset.load(name), model, config.data)
+        known[name]
+        if name in known
+        else check_fmap_room(
+            prepare_train_shape(dataset.load(name), model, config.data), config.loss.n_fmap, dataset
+        )
         for name in names
     ]
     index = {name: i for i, name in enumerate(names)}

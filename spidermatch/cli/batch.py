@@ -132,8 +132,9 @@ def summarise(rows: list[dict], n_planned: int) -> dict:
         statuses[row["status"]] = statuses.get(row["status"], 0) + 1
     succeeded = [r for r in rows if r["status"] in MATCHED]
     verdicts: dict[str, int] = {}
-    for row in succeeded:
-        verdicts[str(row.get("quality"))] = verdicts.get(str(row.get("quality")), 0) + 1
+    for verdict in (row.get("quality") for row in succeeded):
+        if verdict is not None:
+            verdicts[verdict] = verdicts.get(verdict, 0) + 1
     return {
         "pairs_planned": n_planned,
         "pairs_finished": len(rows),

@@ -144,6 +144,9 @@ def run_eval(cfg, run_dir: Path) -> int:
     A stored pair result is reused only if it was made with the same settings (a hash in
     its ``result.json``) from unchanged input files; otherwise the pair runs again. A
     signal stops the run after recording the pair in progress as ``interrupted``.
+
+    Returns 0 if any pair was matched; the first pair's exit code if none was; 6 if the
+    summary cannot be written; 130/143 after a signal.
     """
     from spidermatch.cli.batch import summary_row, write_summary
 
@@ -233,4 +236,7 @@ def _plot_run(run_dir: Path, label: str) -> None:
 
     errors = collect_errors(run_dir)
     if errors.size:
-        save_error_curves({label: errors}, run_dir / "errors.png")
+        try:
+            save_error_curves({label: errors}, run_dir / "errors.png")
+        except OSError as error:  # a picture, after summary.csv and summary.json: the run stands
+            logger.warning("%s cannot be written (%s)", run_dir / "errors.png", error.strerror or error)

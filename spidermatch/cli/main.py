@@ -26,11 +26,11 @@ EXIT_BAD_INPUT = shutdown.EXIT_BAD_INPUT
 def configure_logging(level: str) -> None:
     """The log level of spidermatch's and the features' loggers.
 
-    A log record that a handler cannot write (the run folder's log file on a full disk) is
-    dropped quietly: the console still shows it, and the run's own error says what failed,
-    instead of a traceback of the logging module for every record.
+    A log record that the run folder's log file cannot take (a full disk) is dropped quietly:
+    the console still shows it, and the run's own error says what failed, instead of a
+    traceback of the logging module for every record.
     """
-    logging.raiseExceptions = False
+    shutdown.quiet_file_logs()
     logging.getLogger("spidermatch").setLevel(level)
     logging.getLogger("features").setLevel(level)
 

@@ -92,9 +92,8 @@ def checked_pair(fields: list[str], known: set[str], where: str) -> tuple[str, s
 def _shape_name(field: str, known: set[str]) -> str:
     """``field`` as a shape name: a known name, or a mesh file name (``tr_reg_070.off``) of one."""
     path = Path(field)
-    if field not in known and path.suffix.lower() in MESH_SUFFIXES and path.stem in known:
-        return path.stem
-    return field
+    a_file_name = path.name == field and path.suffix.lower() in MESH_SUFFIXES  # no folder part
+    return path.stem if field not in known and a_file_name and path.stem in known else field
 
 
 def mesh_files(folder: Path) -> dict[str, Path]:

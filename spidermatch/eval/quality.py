@@ -210,7 +210,11 @@ def _confirmed(suspect: bool, dense_figure: float | None, dense_threshold: float
 
 
 def judge(figures) -> dict:
-    """``verdict`` and ``reasons`` from the figures of :func:`assess` (and :func:`dense_figures`, if any)."""
+    """``verdict``, ``reasons`` and ``unjudged`` from :func:`assess`'s (and :func:`dense_figures`') figures.
+
+    ``unjudged`` names what the figures cannot tell on this pair: a misplaced region on a target
+    with boundaries (``partial=both``, or two open scans matched as wholes).
+    """
     reasons = []
     dense = figures.get("dense_mirror")  # None: no dense map
     if _confirmed(figures["mirror"] > MIRROR_SUSPECT, dense, DENSE_MIRROR_SUSPECT):

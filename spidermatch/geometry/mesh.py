@@ -507,26 +507,33 @@ def nearly_closed(verts: np.ndarray, faces: np.ndarray) -> bool:
 
 
 def signed_volume(verts: np.ndarray, faces: np.ndarray) -> float:
-    """Volume enclosed by a closed, consistently oriented surface; negative when it faces inwards."""
+    """Volume enclosed by a closed, consistently oriented surface; negative when it faces inwards.
+
+    On an open surface: the summed volume of the cones from the origin to its faces.
+    """
     a, b, c = (verts[faces[:, k]] for k in range(3))
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 
 
-def make_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>", notes: tuple = ()) -> Mesh:
+def make_mesh(
+    verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>", notes: tuple = (), outward: bool = True
+) -> Mesh:
     """Validate (verts, faces) and wrap them in a :class:`Mesh`.
 
     Faces are reversed where needed so that all share one orientation (the decimation and
-    every normal need one, and the matching preserves it): on a closed surface, or one closed
-    but for small holes, the outward one, also when every face faced inwards (a surface wound
-    the other way round would be matched to its mirror image); on an open one the orientation
-    most faces share. The mesh's ``notes`` (after the given ``notes``, e.g. the loader's) and
-    the log say how many.
+    every normal need one, and the matching preserves it): first to the orientation most
+    faces share, then, with ``outward``, all of them if the surface faces inwards
+    (:func:`faces_inwards`: a closed surface enclosing a negative volume, or an open one, a
+    part, clearly so), since a surface wound the other way round would be matched to its
+    mirror image. A mesh derived from one already oriented (a decimation) passes
+    ``outward=False``: it keeps its parent's orientation, whatever its own shape would say.
+    The mesh's ``notes`` (after the given ``notes``, e.g. the loader's) and the log say how many.
     """
     flip = validate_mesh(verts, faces, name)
     faces = np.array(faces, dtype=np.int64)
     faces[flip] = faces[flip][:, ::-1]
     points = np.asarray(verts, dtype=np.float64)
-    if faces_inwards(points, faces):
+    if outward and faces_inwards(points, faces):
         faces, flip = faces[:, ::-1].copy(), ~flip
     notes = tuple(notes)
     if flip.all():
@@ -536,8 +543,8 @@ def make_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>", notes:
         )
     elif flip.any():
         note = (
-            f"{name}: {int(flip.sum())} of {len(faces)} faces were oriented against their neighbours; "
-            "they were reversed so that all faces share one orientation"
+            f"{name}: {int(flip.sum())} of {len(faces)} faces were oriented against their neighbours "
+            "(or the surface faced inwards); they were reversed so that all faces share one orientation"
         )
     if flip.any():
         logger.warning("%s", note)
@@ -579,13 +586,25 @@ REVERSED_FACES = "reversed_faces"
 """Cache key :func:`make_mesh` sets when it reversed faces: which ones, (F,) bool."""
 
 
+def reversed_faces_of(mesh: Mesh) -> np.ndarray | None:
+    """Which faces (F,) bool :func:`make_mesh` reversed from the order given, or None if none."""
+    return mesh._cache.get(REVERSED_FACES)
+
+
+def keep_reversed_faces(part: Mesh, whole: Mesh, face_ids: np.ndarray) -> None:
+    """Mark on ``part`` the faces reversed in ``whole``; ``face_ids`` (F_part,): its faces in ``whole``."""
+    reversed_faces = reversed_faces_of(whole)
+    if reversed_faces is not None and reversed_faces[face_ids].any():
+        part.cached(REVERSED_FACES, lambda: reversed_faces[face_ids])
+
+
 def bary_in_given_corners(mesh: Mesh, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
     """Barycentric coordinates (N, 3) in ``face`` (N,) of ``mesh``, in its faces' corner order as given.
 
     :func:`make_mesh` may have reversed faces (their corners then run the other way round):
     their coordinates are reversed with them. Rows with ``face`` -1 (none) are left as they are.
     """
-    reversed_faces = mesh._cache.get(REVERSED_FACES)
+    reversed_faces = reversed_faces_of(mesh)
     if reversed_faces is None:
         return bary
     face = np.asarray(face)

@@ -24,7 +24,9 @@ from spidermatch.geometry.mesh import (
     MeshError,
     Topology,
     face_edges,
+    keep_reversed_faces,
     mean_incident_edge_length,
+    reversed_faces_of,
     topology,
     vertex_fans,
 )
@@ -102,7 +104,10 @@ def kept_part(mesh: Mesh, keep_faces: np.ndarray, name: str, kind: str) -> Parti
         raise ValueError(f"{mesh.name}: the cut keeps no face")
     to_original, local = np.unique(faces, return_inverse=True)
     part = Mesh(mesh.verts[to_original], local.reshape(-1, 3), name)
-    return PartialShape(part, to_original.astype(np.int64), part.area / mesh.area, kind)
+    kept = PartialShape(part, to_original.astype(np.int64), part.area / mesh.area, kind)
+    if reversed_faces_of(mesh) is not None:  # the files name the whole's faces in their given corners
+        keep_reversed_faces(part, mesh, original_faces(kept, mesh))
+    return kept
 
 
 def original_faces(part: PartialShape, whole: Mesh) -> np.ndarray:

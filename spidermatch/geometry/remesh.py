@@ -95,7 +95,7 @@ def decimate(mesh: Mesh, target_faces: int, method: str = "shortest_edge") -> De
     )
     name = f"{mesh.name} (decimated to {target_faces} faces)"
     try:
-        low = make_mesh(verts, faces, name)
+        low = make_mesh(verts, faces, name, outward=False)  # the decimation keeps the mesh's orientation
     except MeshError as error:
         raise MeshError(f"{error}; try a higher resolution") from error
     logger.debug("decimated %s: %d -> %d faces", mesh.name, mesh.n_faces, low.n_faces)
