@@ -19,6 +19,20 @@ def config(overrides):
     return composed("eval", overrides)
 
 
+BROKEN_OFF = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 9\n"  # a face naming a vertex the file lacks
+
+
+def eval_setup(tmp_path, n_shapes: int, pair_lines: str, broken: str | None = None):
+    """A synthetic dataset of ``n_shapes`` creatures (mesh ``broken`` made unreadable), its pairs file
+    and the eval config over them."""
+    root = write_dataset(SyntheticShapes(n_shapes=n_shapes, n_verts=700), tmp_path / "data")
+    if broken is not None:
+        (root / "off" / f"{broken}.off").write_text(BROKEN_OFF)
+    pairs = tmp_path / "pairs.txt"
+    pairs.write_text(pair_lines)
+    return root, config(SMALL + [f"dataset={root}", f"pairs_file={pairs}"])
+
+
 def test_select_pairs_is_seeded():
     names = ["a", "b", "c", "d"]
     pairs = [(x, y) for x in names for y in names if x != y]
@@ -38,11 +52,8 @@ def test_more_pairs_extend_fewer_pairs():
 
 
 def test_broken_mesh_is_reported_and_other_pairs_complete(tmp_path):
-    root = write_dataset(SyntheticShapes(n_shapes=3, n_verts=700), tmp_path / "data")
-    (root / "off" / "creature_002.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 9\n")
-    pairs = tmp_path / "pairs.txt"
-    pairs.write_text("creature_000 creature_001\ncreature_002 creature_000\ncreature_001 creature_000\n")
-    cfg = config(SMALL + [f"dataset={root}", f"pairs_file={pairs}"])
+    lines = "creature_000 creature_001\ncreature_002 creature_000\ncreature_001 creature_000\n"
+    _, cfg = eval_setup(tmp_path, 3, lines, broken="creature_002")
     assert run_eval(cfg, tmp_path / "run") == 0
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["pairs_finished"] == 3
@@ -65,10 +76,7 @@ def test_an_unwritable_summary_ends_the_eval_with_exit_6_and_no_half_files(tmp_p
     summary.json.tmp left; now exit 6 naming the file, and the same command resumes."""
     from spidermatch import shutdown
 
-    root = write_dataset(SyntheticShapes(n_shapes=2, n_verts=700), tmp_path / "data")
-    pairs = tmp_path / "pairs.txt"
-    pairs.write_text("creature_000 creature_001\ncreature_001 creature_000\n")
-    cfg = config(SMALL + [f"dataset={root}", f"pairs_file={pairs}"])
+    _, cfg = eval_setup(tmp_path, 2, "creature_000 creature_001\ncreature_001 creature_000\n")
 
     real_mkstemp, calls = shutdown.tempfile.mkstemp, []
 
@@ -92,22 +100,17 @@ def test_an_unwritable_summary_ends_the_eval_with_exit_6_and_no_half_files(tmp_p
 
 def test_an_eval_whose_every_pair_failed_does_not_exit_0(tmp_path):
     """Every pair's mesh broken: the eval ended with exit 0, as if it had succeeded."""
-    root = write_dataset(SyntheticShapes(n_shapes=2, n_verts=700), tmp_path / "data")
-    (root / "off" / "creature_001.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 9\n")
-    pairs = tmp_path / "pairs.txt"
-    pairs.write_text("creature_000 creature_001\ncreature_001 creature_000\n")
-    cfg = config(SMALL + [f"dataset={root}", f"pairs_file={pairs}"])
+    lines = "creature_000 creature_001\ncreature_001 creature_000\n"
+    _, cfg = eval_setup(tmp_path, 2, lines, broken="creature_001")
     assert run_eval(cfg, tmp_path / "run") == 2  # the pairs' own exit code: bad input
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["statuses"] == {"input_error": 2}
 
 
 def test_a_missing_ground_truth_file_is_named_in_the_pair_s_warnings(tmp_path):
     """One .vts file missing: the pair's error was left out of the summary without a word."""
-    root = write_dataset(SyntheticShapes(n_shapes=2, n_verts=700), tmp_path / "data")
+    root, cfg = eval_setup(tmp_path, 2, "creature_000 creature_001\n")
     (root / "corres" / "creature_001.vts").unlink()
-    pairs = tmp_path / "pairs.txt"
-    pairs.write_text("creature_000 creature_001\n")
-    assert run_eval(config(SMALL + [f"dataset={root}", f"pairs_file={pairs}"]), tmp_path / "run") == 0
+    assert run_eval(cfg, tmp_path / "run") == 0
     result = json.loads(
         (tmp_path / "run" / "pairs" / "creature_000__creature_001" / "result.json").read_text()
     )
