@@ -423,7 +423,7 @@ def _check_features(mesh: Mesh, features: np.ndarray, role: str) -> None:
     if not np.isfinite(features).all():
         raise ValueError(f"{role} features of {mesh.name} contain NaN or infinite values")
     spread = np.abs(features - features[:1]).max(initial=0.0)
-    if spread <= 1e-12 * max(1.0, float(np.abs(features).max(initial=0.0))):
+    if spread <= 1e-12 * float(np.abs(features).max(initial=0.0)):  # relative: features of any scale
         raise ValueError(
             f"{role} features of {mesh.name} are the same at every vertex: they tell no vertex from "
             "another, so every matching would cost the same (check how they were computed)"
