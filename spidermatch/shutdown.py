@@ -398,5 +398,13 @@ def quiet_file_logs() -> None:
             handler.handleError = _drop_record
 
 
+def log_to_files(logger: logging.Logger, level: int, message: str) -> None:
+    """``message`` to the root logger's file handlers only (the console has it already)."""
+    record = logger.makeRecord(logger.name, level, "(unknown file)", 0, message, (), None)
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, logging.FileHandler):
+            handler.handle(record)
+
+
 def _drop_record(record: logging.LogRecord) -> None:
     """A log record a file handler could not write: dropped (see :func:`quiet_file_logs`)."""

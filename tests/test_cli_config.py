@@ -145,3 +145,20 @@ def test_saved_config_and_result_describe_the_file_run(tmp_path):
     assert solved["nonzeros"] < full["nonzeros"]  # rcfix solves the surviving columns only
     log = next(run_dir.glob("*.log")).read_text()
     assert f"full model: {full['variables']} variables, {full['rows']} rows" in log
+
+
+def test_a_training_refused_after_hydra_started_says_why_in_its_log_file(tmp_path):
+    """A bad data folder: the reason was printed to the console only, not to the run folder's cli.log
+    (all a batch job keeps)."""
+    out = run_command(
+        "train.cli:main",
+        [
+            "train/experiment=folder_unsup",
+            f"data.root={tmp_path / 'nowhere'}",
+            f"hydra.run.dir={tmp_path / 'run'}",
+        ],
+        tmp_path,
+    )
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert "spidermatch-train: error (data)" in out.stderr
+    assert "spidermatch-train: error (data)" in (tmp_path / "run" / "cli.log").read_text()

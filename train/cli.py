@@ -46,6 +46,12 @@ def worse_than_wks(result) -> str:
     )
 
 
+def _report_end(message: str) -> None:
+    """Why training ended early: on stderr, and in the run folder's log file (a batch job's record)."""
+    print(message, file=sys.stderr)
+    shutdown.log_to_files(logger, logging.ERROR, message)
+
+
 @hydra.main(config_path="pkg://conf", config_name="train", version_base="1.3")
 def train_main(cfg: DictConfig) -> float:
     """Train DiffusionNet features; writes ``last.pt`` and ``best.pt`` in the run folder.
@@ -60,19 +66,13 @@ def train_main(cfg: DictConfig) -> float:
         result = train(config, out_dir)
     except (ValueError, FloatingPointError) as error:  # CheckpointError, DatasetError, MeshError
         kind = type(error).__name__ if not isinstance(error, (DatasetError, MeshError)) else "data"
-        print(f"spidermatch-train: error ({kind}): {error}", file=sys.stderr)
+        _report_end(f"spidermatch-train: error ({kind}): {error}")
         raise SystemExit(2) from error
     except OSError as error:  # a checkpoint or log that cannot be written, e.g. a full disk (OutputError)
-        print(
-            f"spidermatch-train: error (output): {error}; the checkpoints written before are kept",
-            file=sys.stderr,
-        )
+        _report_end(f"spidermatch-train: error (output): {error}; the checkpoints written before are kept")
         raise SystemExit(shutdown.EXIT_OUTPUT_ERROR) from error
     except KeyboardInterrupt:  # a second Ctrl-C: stop at once, without a traceback
-        print(
-            f"spidermatch-train: aborted at once; the last checkpoints saved are in {out_dir}",
-            file=sys.stderr,
-        )
+        _report_end(f"spidermatch-train: aborted at once; the last checkpoints saved are in {out_dir}")
         raise SystemExit(130) from None
     status = f"interrupted (exit {result.exit_code})" if result.interrupted else "finished"
     figure = CRITERION_NAMES.get(result.criterion, result.criterion)
