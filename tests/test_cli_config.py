@@ -162,3 +162,29 @@ def test_a_training_refused_after_hydra_started_says_why_in_its_log_file(tmp_pat
     assert out.returncode == 2, out.stderr[-2000:]
     assert "spidermatch-train: error (data)" in out.stderr
     assert "spidermatch-train: error (data)" in (tmp_path / "run" / "cli.log").read_text()
+
+
+def test_training_stopped_during_its_data_preparation_says_so(tmp_path):
+    """SIGTERM before the first step (a pre-empted batch job) ended the process with 143 and no word."""
+    import signal
+    import time
+
+    slow_preparation = (
+        "import time, train.loop as loop; given = loop.prepare_data; "
+        "loop.prepare_data = lambda config: (time.sleep(60), given(config))[1]; "
+    )
+    args = [f"hydra.run.dir={tmp_path / 'run'}"]
+    code = f"import sys; sys.argv = ['prog'] + {args!r}; {slow_preparation}from train.cli import main; main()"
+    env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    process = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+    )
+    deadline = time.monotonic() + 120
+    while not (tmp_path / "run" / "cli.log").exists() and time.monotonic() < deadline:
+        time.sleep(0.2)  # Hydra has started the job (its log file) and the preparation sleeps
+    time.sleep(1.0)
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 143, err[-2000:]
+    assert "stopped by SIGTERM during the data preparation; nothing was trained" in err
+    assert "nothing was trained" in (tmp_path / "run" / "cli.log").read_text()

@@ -71,6 +71,9 @@ def train_main(cfg: DictConfig) -> float:
     except OSError as error:  # a checkpoint or log that cannot be written, e.g. a full disk (OutputError)
         _report_end(f"spidermatch-train: error (output): {error}; the checkpoints written before are kept")
         raise SystemExit(shutdown.EXIT_OUTPUT_ERROR) from error
+    except shutdown.RunInterrupted as stop:  # during the data preparation
+        _report_end(f"spidermatch-train: {stop} during the data preparation; nothing was trained")
+        raise SystemExit(stop.exit_code) from None
     except KeyboardInterrupt:  # a second Ctrl-C: stop at once, without a traceback
         _report_end(f"spidermatch-train: aborted at once; the last checkpoints saved are in {out_dir}")
         raise SystemExit(130) from None

@@ -574,5 +574,6 @@ def train(config: TrainConfig, out_dir: str | os.PathLike) -> TrainResult:
         torch.set_num_threads(config.run.threads)
     if config.resume is not None:
         compatible_checkpoint(config.resume, config)  # fail before the (slow) data preparation
-    shapes, validation = prepare_data(config)
+    with shutdown.signals_handled():  # SIGINT/SIGTERM here: RunInterrupted (nothing trained yet)
+        shapes, validation = prepare_data(config)
     return run_training(config, out_dir, shapes, validation, started)
