@@ -22,7 +22,7 @@ from spidermatch import defaults, shutdown
 from spidermatch.dense.densify import densify
 from spidermatch.dense.maps import DenseMap, on_given_meshes
 from spidermatch.dense.settings import DenseSettings
-from spidermatch.eval.quality import assess, dense_figures, with_dense_figures
+from spidermatch.eval.quality import assess, dense_figures, remarks, with_dense_figures
 from spidermatch.geometry.holes import (
     ClosedCopy,
     closed_copy,
@@ -422,8 +422,9 @@ def _check_features(mesh: Mesh, features: np.ndarray, role: str) -> None:
         )
     if not np.isfinite(features).all():
         raise ValueError(f"{role} features of {mesh.name} contain NaN or infinite values")
-    spread = np.abs(features - features[:1]).max(initial=0.0)
-    if spread <= 1e-12 * float(np.abs(features).max(initial=0.0)):  # relative: features of any scale
+    highest, lowest = features.max(axis=0), features.min(axis=0)  # rows: at least one vertex
+    spread = float((highest - lowest).max(initial=0.0))  # per-column reductions: no (V, D) temporary
+    if spread <= 1e-12 * float(np.maximum(np.abs(highest), np.abs(lowest)).max(initial=0.0)):
         raise ValueError(
             f"{role} features of {mesh.name} are the same at every vertex: they tell no vertex from "
             "another, so every matching would cost the same (check how they were computed)"
@@ -928,8 +929,7 @@ def _opinion(result: MatchResult) -> dict:
 
 def _log_quality(quality: dict) -> None:
     log = logger.warning if quality["verdict"] == "suspect" else logger.info
-    said = quality["reasons"] or quality.get("unjudged", [])
-    log("quality: %s%s", quality["verdict"], "".join(f"; {r}" for r in said))
+    log("quality: %s%s", quality["verdict"], "".join(f"; {r}" for r in remarks(quality)))
 
 
 def _judged_with_dense_map(result: MatchResult, source: Mesh, target: Mesh, dense: DenseMap) -> None:

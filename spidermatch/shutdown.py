@@ -393,17 +393,20 @@ def quiet_file_logs() -> None:
     Python's default prints '--- Logging error ---' and a traceback to the console for every
     such record; the run's own error already says what failed. Console handlers keep the default.
     """
-    for handler in logging.getLogger().handlers:
-        if isinstance(handler, logging.FileHandler):
-            handler.handleError = _drop_record
+    for handler in _file_handlers():
+        handler.handleError = _drop_record
 
 
 def log_to_files(logger: logging.Logger, level: int, message: str) -> None:
     """``message`` to the root logger's file handlers only (the console has it already)."""
     record = logger.makeRecord(logger.name, level, "(unknown file)", 0, message, (), None)
-    for handler in logging.getLogger().handlers:
-        if isinstance(handler, logging.FileHandler):
-            handler.handle(record)
+    for handler in _file_handlers():
+        handler.handle(record)
+
+
+def _file_handlers() -> list[logging.FileHandler]:
+    """The root logger's handlers that write a file (Hydra's run log)."""
+    return [handler for handler in logging.getLogger().handlers if isinstance(handler, logging.FileHandler)]
 
 
 def _drop_record(record: logging.LogRecord) -> None:

@@ -15,6 +15,7 @@ import numpy as np
 from spidermatch import shutdown
 from spidermatch.cli.inputs import MatchInputs
 from spidermatch.eval.errors import sparse_map_errors
+from spidermatch.eval.quality import remarks
 from spidermatch.geometry.partial import overlap_summary
 from spidermatch.pipeline import MatchResult
 from spidermatch.shutdown import write_atomic
@@ -68,7 +69,7 @@ def final_line(report: dict, code: int) -> str:
         parts.append(f"gap {report['gap']:.1e}")
     quality = report.get("quality")
     if quality:
-        said = quality["reasons"] or (quality.get("unjudged") if quality["verdict"] == "plausible" else None)
+        said = remarks(quality)
         parts.append(f"quality {quality['verdict']}" + (f" ({said[0]})" if said else ""))
     if report.get("geodesic_error"):
         error = f"mean geodesic error {report['geodesic_error']['mean']:.4f}"
@@ -106,15 +107,13 @@ def start_run(output_dir: Path, result_path: Path | None, report: dict) -> None:
     Every output a run leaves is then its own: a run that writes fewer files (e.g.
     ``dense.enabled=false``) never leaves another pair's dense map beside its result.
     """
+    if result_path is not None:  # else nothing to tell the user's own result.json from a run's
+        refuse_foreign_folder(output_dir)
     try:
         output_dir.mkdir(parents=True, exist_ok=True)
-        if result_path is not None:  # else nothing to tell the user's own result.json from a run's
-            refuse_foreign_folder(output_dir)
-        stale = [output_dir / name for name in RUN_OUTPUTS if (output_dir / name).exists()]
+        stale = _present_outputs(output_dir)
         for path in stale:
             path.unlink()
-    except ForeignFolder:
-        raise  # an OSError too, but not one of preparing the folder
     except OSError as error:
         message = f"{output_dir}: the run folder cannot be prepared ({error.strerror})"
         raise shutdown.OutputError(message) from error
@@ -129,13 +128,19 @@ def refuse_foreign_folder(output_dir: Path) -> None:
 
     Read only: called before a run writes anything into the folder (its lock, ``.hydra/``).
     """
-    names = [name for name in RUN_OUTPUTS if (output_dir / name).exists()]
-    if names and not _earlier_run(output_dir):
+    present = _present_outputs(output_dir)
+    if present and not _earlier_run(output_dir):
+        names = ", ".join(path.name for path in present)
         raise ForeignFolder(
-            f"{output_dir}: holds {', '.join(names)}, which no earlier spidermatch run wrote (neither its "
+            f"{output_dir}: holds {names}, which no earlier spidermatch run wrote (neither its "
             f"{shutdown.LOCK_NAME} nor its result.json is there): choose another run folder "
             "(hydra.run.dir=...) or move them"
         )
+
+
+def _present_outputs(output_dir: Path) -> list[Path]:
+    """The files of ``output_dir`` named as a run's outputs (:data:`RUN_OUTPUTS`)."""
+    return [output_dir / name for name in RUN_OUTPUTS if (output_dir / name).exists()]
 
 
 def _earlier_run(output_dir: Path) -> bool:

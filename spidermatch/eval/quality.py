@@ -245,6 +245,11 @@ def judge(figures) -> dict:
     return {"verdict": "suspect" if reasons else "plausible", "reasons": reasons, "unjudged": unjudged}
 
 
+def remarks(quality: dict) -> list[str]:
+    """What to say beside a verdict: a suspect map's reasons, else what a plausible one did not judge."""
+    return quality["reasons"] or quality.get("unjudged", [])
+
+
 OPEN_TARGET_UNJUDGED = (
     "a region laid onto the wrong part of the target is not judged: the target has boundaries, around "
     "which geodesics detour"

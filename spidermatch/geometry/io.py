@@ -215,10 +215,9 @@ def _off_faces(path: Path, lines) -> tuple[np.ndarray, int]:
     ]
     if not polygons:
         return triangles, 0
-    order = np.argsort(counts > 3, kind="stable")  # put each face's triangles back in file order
-    pieces = [[row] for row in triangles] + polygons
-    in_order = [pieces[k] for k in np.argsort(order, kind="stable")]
-    return np.array([t for piece in in_order for t in piece], dtype=np.int64).reshape(-1, 3), len(polygons)
+    rows, fans = iter(triangles), iter(polygons)  # each face's triangles back in file order
+    in_order = [t for c in counts for t in ([next(rows)] if c == 3 else next(fans))]
+    return np.array(in_order, dtype=np.int64).reshape(-1, 3), len(polygons)
 
 
 def _parse_plain_off(text: str) -> tuple[np.ndarray, np.ndarray] | None:

@@ -258,7 +258,7 @@ def validate_mesh(verts: np.ndarray, faces: np.ndarray, name: str = "<mesh>") ->
     faces = np.asarray(faces)
     _check_shapes(verts, faces, name)
     _check_number_types(verts, faces, name)
-    verts = verts.astype(np.float64)  # areas of float16 (or int) coordinates would round to 0
+    verts = np.asarray(verts, dtype=np.float64)  # areas of float16 (or int) coordinates would round to 0
     _check_finite(verts, name)
     _check_face_indices(faces, verts.shape[0], name)
     _check_degenerate_faces(verts, faces, name)
@@ -536,17 +536,8 @@ def make_mesh(
     if outward and faces_inwards(points, faces):
         faces, flip = faces[:, ::-1].copy(), ~flip
     notes = tuple(notes)
-    if flip.all():
-        note = (
-            f"{name}: all {len(faces)} faces faced inwards (the surface is wound the other way round); "
-            "they were reversed so that it faces outwards, else it would be matched to its mirror image"
-        )
-    elif flip.any():
-        note = (
-            f"{name}: {int(flip.sum())} of {len(faces)} faces were oriented against their neighbours "
-            "(or the surface faced inwards); they were reversed so that all faces share one orientation"
-        )
-    if flip.any():
+    note = _orientation_note(name, flip)
+    if note is not None:
         logger.warning("%s", note)
         notes += (note,)
     mesh = Mesh(points, faces, name, notes)
@@ -554,6 +545,21 @@ def make_mesh(
     if flip.any():
         mesh.cached(REVERSED_FACES, lambda: flip)
     return mesh
+
+
+def _orientation_note(name: str, flip: np.ndarray) -> str | None:
+    """What :func:`make_mesh` says about the faces ``flip`` (F,) bool it reversed (None: none)."""
+    if flip.all():
+        return (
+            f"{name}: all {len(flip)} faces faced inwards (the surface is wound the other way round); "
+            "they were reversed so that it faces outwards, else it would be matched to its mirror image"
+        )
+    if flip.any():
+        return (
+            f"{name}: {int(flip.sum())} of {len(flip)} faces were oriented against their neighbours "
+            "(or the surface faced inwards); they were reversed so that all faces share one orientation"
+        )
+    return None
 
 
 OPEN_INWARD_VOLUME = 0.002
@@ -591,11 +597,10 @@ def reversed_faces_of(mesh: Mesh) -> np.ndarray | None:
     return mesh._cache.get(REVERSED_FACES)
 
 
-def keep_reversed_faces(part: Mesh, whole: Mesh, face_ids: np.ndarray) -> None:
-    """Mark on ``part`` the faces reversed in ``whole``; ``face_ids`` (F_part,): its faces in ``whole``."""
-    reversed_faces = reversed_faces_of(whole)
-    if reversed_faces is not None and reversed_faces[face_ids].any():
-        part.cached(REVERSED_FACES, lambda: reversed_faces[face_ids])
+def keep_reversed_faces(part: Mesh, reversed_faces: np.ndarray) -> None:
+    """Mark on ``part`` (cut from a mesh make_mesh made) which of its faces (F_part,) bool were reversed."""
+    if reversed_faces.any():
+        part.cached(REVERSED_FACES, lambda: reversed_faces)
 
 
 def bary_in_given_corners(mesh: Mesh, face: np.ndarray, bary: np.ndarray) -> np.ndarray:

@@ -105,8 +105,9 @@ def kept_part(mesh: Mesh, keep_faces: np.ndarray, name: str, kind: str) -> Parti
     to_original, local = np.unique(faces, return_inverse=True)
     part = Mesh(mesh.verts[to_original], local.reshape(-1, 3), name)
     kept = PartialShape(part, to_original.astype(np.int64), part.area / mesh.area, kind)
-    if reversed_faces_of(mesh) is not None:  # the files name the whole's faces in their given corners
-        keep_reversed_faces(part, mesh, original_faces(kept, mesh))
+    reversed_faces = reversed_faces_of(mesh)
+    if reversed_faces is not None:  # the files name the whole's faces in their given corners
+        keep_reversed_faces(part, reversed_faces[original_faces(kept, mesh)])
     return kept
 
 
