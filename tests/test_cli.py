@@ -7,6 +7,7 @@ from conftest import composed
 
 from spidermatch.cli.match import run_match
 from spidermatch.data.datasets import SyntheticShapes, write_dataset
+from spidermatch.versions import spidermatch_version
 
 # a generous time limit: on a loaded machine the 300 s default can stop a small solve
 SMALL = ["data.n_verts=700", "resolution=60", "solver.time_limit=3600"]
@@ -90,6 +91,9 @@ def test_learned_features_in_match(tmp_path, tiny_checkpoint):
     assert run_match(cfg, tmp_path) == 0
     result = json.loads((tmp_path / "result.json").read_text())
     assert result["features"] == "learned" and result["check"]["ok"]
+    # which code made it: spidermatch (with its commit in a checkout), HiGHS, and torch for the network
+    software = result["software"]
+    assert software["spidermatch"] == spidermatch_version() and software["highs"] and software["torch"]
 
 
 def test_learned_features_need_a_usable_checkpoint(tmp_path):

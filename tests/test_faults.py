@@ -25,6 +25,7 @@ from spidermatch.data.datasets import SyntheticShapes, write_dataset
 from spidermatch.geometry.io import load_mesh, read_vts, save_mesh
 from spidermatch.geometry.mesh import Mesh, MeshError, topology
 from spidermatch.solve.highs import SolverOptionError, set_option
+from spidermatch.versions import spidermatch_version
 
 SMALL = ["data.n_verts=700", "resolution=60", "output.png=false"]
 
@@ -117,11 +118,21 @@ def test_01_eval_reruns_pairs_of_other_settings_and_changed_inputs(tmp_path, sma
 
 
 def test_01_rerun_reasons():
-    stored = {"status": "optimal", "settings_hash": "abc", "input_files": [{"path": "a", "size": 1}]}
+    stored = {
+        "status": "optimal",
+        "settings_hash": "abc",
+        "input_files": [{"path": "a", "size": 1}],
+        "software": {"spidermatch": spidermatch_version()},
+    }
     assert rerun_reason(stored, "abc", [{"path": "a", "size": 1}]) is None
     assert "settings" in rerun_reason(stored, "xyz", [{"path": "a", "size": 1}])
     assert "input files" in rerun_reason(stored, "abc", [{"path": "a", "size": 2}])
     assert "interrupted" in rerun_reason({**stored, "status": "interrupted"}, "abc", stored["input_files"])
+    # a result of other code is not reused: a fix since may change the pair's matching
+    older = {**stored, "software": {"spidermatch": "0.0.9"}}
+    assert "matched by spidermatch 0.0.9" in rerun_reason(older, "abc", stored["input_files"])
+    unversioned = {key: value for key, value in stored.items() if key != "software"}
+    assert "recorded none" in rerun_reason(unversioned, "abc", stored["input_files"])
 
 
 # 2. solver options are validated up front, and HiGHS's option status is checked

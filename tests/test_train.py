@@ -11,6 +11,7 @@ import torch
 
 from features.diffusion_net import ModelConfig, ShapeInput, prepare_shape
 from features.learned import CheckpointError, load_network
+from spidermatch.versions import spidermatch_version
 from train.config import DataConfig, OptimConfig, RunConfig, TrainConfig
 from train.data import (
     TrainShape,
@@ -117,6 +118,8 @@ def test_checkpoint_round_trip_is_bit_exact(tmp_path, shapes):
         train_step(state, shapes, config)
     save_checkpoint(tmp_path / "c.pt", state, config)
     rng_after_save = torch.get_rng_state()
+    stored = torch.load(tmp_path / "c.pt", weights_only=True)["software"]
+    assert stored["spidermatch"] == spidermatch_version() and stored["torch"] == torch.__version__
     torch.manual_seed(123)  # disturb everything the checkpoint must restore
     restored = new_state(config)
     load_checkpoint_into(tmp_path / "c.pt", restored, config)

@@ -11,6 +11,7 @@ A checkpoint is a ``torch.save`` dictionary (readable with ``weights_only=True``
     optimizer, scheduler   their state_dicts
     rng                    torch global RNG state and the pair sampler's state
     metrics                best validation error, validation history, last loss
+    software               versions of spidermatch, torch and the rest that trained it
 
 Resuming restores all of it, so the next losses equal those of an uninterrupted run.
 """
@@ -42,6 +43,7 @@ from features.orientation import (
 )
 from spidermatch import shutdown
 from spidermatch.data.datasets import DatasetError
+from spidermatch.versions import software_versions
 from train.config import TrainConfig, incompatibilities
 from train.data import (
     PartialInput,
@@ -175,6 +177,7 @@ def checkpoint_dict(state: TrainingState, config: TrainConfig) -> dict[str, Any]
         "rng": {"torch": torch.get_rng_state(), "pairs": state.generator.get_state()},
         "metrics": {"best_val": state.best_val, "history": list(state.history), "last_loss": state.last_loss},
         "orientation": state.orientation,
+        "software": software_versions(),
     }
 
 

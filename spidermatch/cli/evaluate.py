@@ -18,6 +18,7 @@ from spidermatch.validate import (
     check_ground_truth,
     check_options,
 )
+from spidermatch.versions import software_versions
 
 logger = logging.getLogger("spidermatch.match")
 
@@ -165,6 +166,7 @@ def run_eval(cfg, run_dir: Path) -> int:
             "strategy": cfg.solver.strategy,
             "pairs": len(pairs),
             "settings_hash": key,
+            "software": software_versions(),
         }
         rows, codes, summary = [], [], {"settings": settings}
         try:

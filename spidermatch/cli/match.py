@@ -41,6 +41,7 @@ from spidermatch.pipeline import MatchError, add_dense_map, match, needs_second_
 from spidermatch.validate import (
     check_options,
 )
+from spidermatch.versions import software_versions
 
 logger = logging.getLogger("spidermatch.match")
 
@@ -80,7 +81,12 @@ def run_pair(
     int
         The exit code (0 on success).
     """
-    report: dict = {"status": "started", "output_dir": str(output_dir), **(record or {})}
+    report: dict = {
+        "status": "started",
+        "output_dir": str(output_dir),
+        "software": software_versions(),
+        **(record or {}),
+    }
     result_path = output_dir / "result.json" if cfg.output.result_json else None
     started = time.perf_counter()
     with shutdown.signals_handled():
@@ -97,6 +103,7 @@ def run_pair(
             report.update(status=status, proven_optimal=False, error=message, exit_code=code)
         with shutdown.signals_held():
             report["total_time_s"] = round(time.perf_counter() - started, 3)
+            report["software"] = software_versions()  # torch too, if the features loaded it
             if result_path is not None:
                 if shutdown.write_result(result_path, report):
                     logger.info("wrote %s", result_path)

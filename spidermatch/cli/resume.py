@@ -2,9 +2,10 @@
 
 A pair's ``result.json`` records a hash of the settings that decide it (resolution,
 features and the checkpoint's content, curve, costs, solver options; not the log level or
-the plots) and a fingerprint of its input files (size and modification time). A re-run
-reuses a stored result only if both match and its status is final; otherwise the pair is
-run again, so a run folder never mixes results of different settings.
+the plots), a fingerprint of its input files (size and modification time) and the version of
+spidermatch that made it (:mod:`spidermatch.versions`). A re-run reuses a stored result only if
+all three match and its status is final; otherwise the pair is run again, so a run folder never
+mixes results of different settings or of different code.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import os
 from pathlib import Path
 
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
+from spidermatch.versions import spidermatch_version
 
 # statuses that are the pair's real outcome (interrupted, output_error, started: run again)
 FINAL_STATUSES = ("optimal", "feasible", "infeasible", "no_solution", "solver_failure", "input_error")
@@ -114,4 +116,8 @@ def rerun_reason(result: dict | None, key: str, inputs: list) -> str | None:
         return "the settings changed since it was matched"
     if result.get("input_files") != inputs:
         return "its input files changed since it was matched"
+    made_by = (result.get("software") or {}).get("spidermatch")
+    if made_by != spidermatch_version():
+        earlier = "a version that recorded none" if made_by is None else made_by
+        return f"it was matched by spidermatch {earlier}, this is {spidermatch_version()}"
     return None
