@@ -102,6 +102,12 @@ class Matching:
         The source vertices that were matched, where not all of them were: with
         ``partial="both"`` those estimated to have a partner on the target, with
         ``repair=True`` those of the largest clean piece (both, with both). None otherwise.
+    matched_meshes : tuple of Mesh, or None
+        The full-resolution (source, target) as matched: the meshes as given, or welded, cut to
+        their repaired pieces or to the source's overlap, in the indices of ``dense`` and
+        ``details``; :meth:`save_pictures` draws them.
+    as_given : bool
+        Whether ``matched_meshes`` are the meshes as given (nothing welded, repaired or cut).
 
     """
 
@@ -116,6 +122,8 @@ class Matching:
     timings: dict = field(default_factory=dict)
     details: object = field(default=None, repr=False)
     source_overlap: np.ndarray | None = field(default=None, repr=False)
+    matched_meshes: tuple | None = field(default=None, repr=False)
+    as_given: bool = field(default=True, repr=False)
 
     @property
     def dense(self):
@@ -136,6 +144,85 @@ class Matching:
     def p2p(self) -> np.ndarray | None:
         """The dense map, source -> target, shape (V_src,) (the pyFM/geomfum name)."""
         return self.dense_map
+
+    def save_pictures(
+        self,
+        folder: str | os.PathLike,
+        source_corr: np.ndarray | None = None,
+        target_corr: np.ndarray | None = None,
+        viewer: bool = True,
+    ) -> list:
+        """Write the command line's pictures of this matching into ``folder`` (created if needed).
+
+        ``correspondence.png``, ``spider_curve.png``, ``texture.png`` (with a dense map),
+        ``error.png`` (with ground truth) and the offline interactive ``viewer.html``, drawn
+        on :attr:`matched_meshes` with the dense map when there is one, else the matches; a
+        partial map greys out the target region it does not cover.
+
+        Parameters
+        ----------
+        folder : str or PathLike
+        source_corr, target_corr : np.ndarray, shape (K,), optional
+            Ground truth: ``source_corr[k]`` and ``target_corr[k]`` are the same point (vertex
+            indices of the meshes as given); adds the error picture and the viewer's error layer.
+        viewer : bool
+            Also write ``viewer.html``.
+
+        Returns
+        -------
+        list of Path
+            The files written.
+
+        Raises
+        ------
+        ValueError
+            No matching to draw, or ground truth for meshes that were welded, repaired or cut
+            (its indices would name other vertices than those matched), or only one of the two.
+        spidermatch.shutdown.OutputError
+            A file cannot be written (a full disk, no permission); earlier pictures stay whole.
+        """
+        from pathlib import Path
+
+        from spidermatch import shutdown
+        from spidermatch.report.figures import MatchPictures, map_errors, status_line, write_match_pictures
+
+        if self.details is None or self.details.low_map is None or self.matched_meshes is None:
+            raise ValueError(f"no matching to draw (status {self.status!r})")
+        if (source_corr is None) != (target_corr is None):
+            raise ValueError("give both source_corr and target_corr, or neither")
+        if source_corr is not None and not self.as_given:
+            raise ValueError(
+                "ground truth names the vertices of the meshes as given, but they were welded, "
+                "repaired or cut before matching: draw without it"
+            )
+        source, target = self.matched_meshes
+        dense = self.details.dense
+        status = status_line({"status": self.status, "gap": self.gap, "resolution": self.resolution,
+                              "features": self.features})  # fmt: skip
+        pictures = MatchPictures(
+            source.centred(),
+            target.centred(),
+            self.details.source.mesh,
+            self.details.curve.vertices,
+            self.details.full_pairs if dense is None else self.details.dense_map,
+            f"{source.name} -> {target.name}",
+            status,
+            None if dense is None else dense.covered,
+        )
+        errors = None
+        if source_corr is not None:
+            corr = [np.asarray(c, dtype=np.int64).ravel() for c in (source_corr, target_corr)]
+            if corr[0].size != corr[1].size:
+                raise ValueError(
+                    f"source_corr and target_corr differ in length ({corr[0].size} vs {corr[1].size})"
+                )
+            errors = map_errors(pictures, corr[0], corr[1])
+        folder = Path(folder)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise shutdown.OutputError(f"{folder}: cannot be created ({error.strerror})") from error
+        return write_match_pictures(folder, pictures, errors, viewer)
 
     def __repr__(self) -> str:
         n = 0 if self.matches is None else len(self.matches)
@@ -437,6 +524,12 @@ def match(
     if strict:
         result.raise_for_status()
     matching = _matching(result, name, run_settings.resolution, {"features": feature_time, **result.timings})
+    changed = (source_weld, target_weld, repaired, target_repaired, piece)
+    matching = dataclasses.replace(
+        matching,
+        matched_meshes=(matched_source, target_mesh),
+        as_given=all(change is None for change in changed),
+    )
     if piece is not None:
         matching = on_whole_source(matching, piece, source_mesh.n_verts)
     if repaired is not None:

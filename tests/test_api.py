@@ -255,3 +255,27 @@ def test_colgen_strategy_gives_rcfix_objective_through_the_api(pair, from_paths)
     assert lazy.status == "optimal" and lazy.proven_optimal
     assert lazy.objective == pytest.approx(from_paths.objective, rel=2e-4)  # both within the 1e-4 gap
     assert lazy.bound <= from_paths.objective * (1 + 1e-4) + 1e-12
+
+
+def test_save_pictures_draws_the_dense_map_with_its_errors(pair, from_paths, tmp_path):
+    from spidermatch.eval.errors import dense_map_errors
+
+    written = from_paths.save_pictures(tmp_path / "pictures", pair.x.corr, pair.y.corr)
+    names = {path.name for path in written}
+    assert names == {"correspondence.png", "spider_curve.png", "texture.png", "error.png", "viewer.html"}
+    assert all(path.stat().st_size > 1000 for path in written)
+    # the viewer's error layer is the dense map's error against the ground truth
+    expected = dense_map_errors(from_paths.dense_map, pair.x.corr, pair.y.corr, pair.y.mesh).mean
+    assert f"mean {expected:.4f}" in (tmp_path / "pictures" / "viewer.html").read_text()
+    with pytest.raises(ValueError, match="both"):
+        from_paths.save_pictures(tmp_path / "other", source_corr=pair.x.corr)
+
+
+def test_save_pictures_refuses_ground_truth_of_meshes_changed_before_matching(pair, tmp_path):
+    mesh = pair.x.mesh
+    soup = (mesh.verts[mesh.faces].reshape(-1, 3), np.arange(3 * mesh.n_faces).reshape(-1, 3))
+    welded = spidermatch.match(soup, pair.target, resolution=RESOLUTION)
+    assert not welded.as_given and welded.matched_meshes[0].n_verts == mesh.n_verts
+    with pytest.raises(ValueError, match="welded, repaired or cut"):
+        welded.save_pictures(tmp_path, pair.x.corr, pair.y.corr)
+    assert {path.name for path in welded.save_pictures(tmp_path, viewer=False)} >= {"correspondence.png"}
