@@ -10,7 +10,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "spidermatch"
 
 LAYERS = (
-    ("values", "shutdown", "memory", "defaults"),
+    ("values", "shutdown", "memory", "defaults", "versions"),
     ("geometry",),
     ("data",),
     ("model",),

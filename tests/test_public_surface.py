@@ -55,6 +55,8 @@ MATCHING_FIELDS = [
     "timings",
     "details",
     "source_overlap",  # added with partial="both": a new field at the end keeps positional use working
+    "matched_meshes",  # added with save_pictures, at the end likewise
+    "as_given",
 ]
 
 
