@@ -20,8 +20,8 @@ LAYERS = (
     ("validate",),
     ("model_size", "feature_transfer"),
     ("pipeline",),
+    ("report",),  # pictures of results: below the API, whose Matching.save_pictures draws them
     ("api",),
-    ("report",),
     ("cli",),
 )
 """Top-level parts of ``spidermatch``, bottom up: a part imports only from its own layer and those below."""
