@@ -348,3 +348,19 @@ def test_feature_search_covers_the_whole_radius_on_a_dense_target():
     finally:
         feature_search.spread_levels = original
     assert np.linalg.norm(target.verts[stuck[0]] - goal) > 0.3
+
+
+def test_a_large_source_shows_the_dense_stage_progress_and_gets_the_same_map(
+    creature_pair, wks_features, monkeypatch, capsys
+):
+    from spidermatch.dense import densify as densify_module
+
+    x, y, low_x, low_y, low_map, _ = creature_pair
+    quiet = densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features)
+    assert "dense map of" not in capsys.readouterr().err  # a small source: no bar
+    monkeypatch.setattr(densify_module, "PROGRESS_VERTICES", x.mesh.n_verts)
+    shown = densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features)
+    bar = capsys.readouterr().err
+    rounds = DenseSettings().deformation_rounds
+    assert f"dense map of {x.mesh.n_verts} vertices" in bar and f"{rounds + 3}/{rounds + 3}" in bar
+    assert np.array_equal(shown.vertex, quiet.vertex) and np.array_equal(shown.bary, quiet.bary)
