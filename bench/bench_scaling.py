@@ -226,8 +226,12 @@ def skipped_row(pair: tuple, faces: int, strategy: str, limit: float) -> dict:
 
 
 def write_rows(out: Path, rows: list[dict], extra: dict | None = None) -> None:
-    """All rows as JSON (with the command line and ``extra``) and CSV (columns: every key any row has)."""
-    out.write_text(json.dumps({"argv": sys.argv, **(extra or {}), "rows": rows}, indent=2) + "\n")
+    """All rows as JSON (with the command line, the software's versions and ``extra``) and CSV (columns:
+    every key any row has)."""
+    from spidermatch.versions import software_versions
+
+    header = {"argv": sys.argv, "software": software_versions(), **(extra or {})}
+    out.write_text(json.dumps({**header, "rows": rows}, indent=2) + "\n")
     keys = list(dict.fromkeys(key for row in rows for key in row))
     with out.with_suffix(".csv").open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=keys)

@@ -162,3 +162,17 @@ def test_scaling_logs_of_two_flow_row_settings_get_two_names():
     default, everywhere = instance_log_name(*args, "found"), instance_log_name(*args, "intersections")
     assert default == "tr_reg_076_tr_reg_077_4000_colgen_two_opt_seed0.log"  # as the stored logs are named
     assert everywhere != default and "intersections" in everywhere
+
+
+def test_benchmark_results_say_which_software_made_them(tmp_path):
+    import json
+
+    from bench_scaling import write_rows
+
+    from spidermatch.versions import spidermatch_version
+
+    write_rows(tmp_path / "figures.json", [{"pair": "a:b", "status": "optimal"}], {"note": "n"})
+    written = json.loads((tmp_path / "figures.json").read_text())
+    assert written["software"]["spidermatch"] == spidermatch_version() and written["software"]["highs"]
+    assert written["note"] == "n" and written["rows"] == [{"pair": "a:b", "status": "optimal"}]
+    assert (tmp_path / "figures.csv").read_text().splitlines() == ["pair,status", "a:b,optimal"]
