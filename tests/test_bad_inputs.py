@@ -568,6 +568,15 @@ def test_a_folder_given_as_a_mesh_says_so(tmp_path):
         load_mesh(tmp_path / "shape.off")
 
 
+def test_a_point_cloud_file_is_named_as_one(tmp_path):
+    points = np.random.default_rng(0).normal(size=(50, 3))
+    trimesh.PointCloud(points).export(tmp_path / "scan.ply")
+    with pytest.raises(
+        MeshError, match=r"scan.ply: no triangles could be read \(a point cloud of 50 points\?\)"
+    ):
+        load_mesh(tmp_path / "scan.ply")
+
+
 def test_a_vts_with_two_columns_names_file_and_line(tmp_path):
     path = tmp_path / "two.vts"
     path.write_text("1 1\n2 2\n")

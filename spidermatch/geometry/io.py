@@ -306,6 +306,17 @@ def read_obj(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, list[str]
     return np.array(verts, dtype=np.float64).reshape(-1, 3), faces_array, notes
 
 
+def _point_count(path: Path) -> int:
+    """Points of a file trimesh reads as a point cloud (0 for anything else or an unreadable file)."""
+    import trimesh
+
+    try:
+        loaded = trimesh.load(str(path), process=False)
+    except Exception:  # only for the message: the caller reports the file as unreadable
+        return 0
+    return len(loaded.vertices) if isinstance(loaded, trimesh.PointCloud) else 0
+
+
 def _read_with_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     import trimesh
 
@@ -318,12 +329,9 @@ def _read_with_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     verts = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
     faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int64)
     if faces.size == 0:
-        what = (
-            f"a point cloud of {verts.shape[0]} points"
-            if verts.shape[0]
-            else f"not a {path.suffix.lower()} file"
-        )
-        raise MeshError(f"{path}: no triangles could be read ({what}?)")
+        points = verts.shape[0] or _point_count(path)  # force="mesh" drops a point cloud's points
+        what = f"a point cloud of {points} points" if points else f"not a {path.suffix.lower()} file"
+        raise MeshError(f"{path}: no triangles could be read ({what}?); spidermatch needs a triangle mesh")
     return verts, faces.reshape(-1, 3) if faces.size else np.zeros((0, 3), dtype=np.int64)
 
 
