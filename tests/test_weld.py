@@ -205,3 +205,23 @@ def test_a_glb_file_is_read_and_its_split_vertices_welded(tmp_path, creature):
     assert read.n_faces == creature.n_faces and np.allclose(read.verts, soup.verts, atol=1e-6)
     mesh, _, weld = mesh_of(str(tmp_path / "scan.glb"), "source", repair=False)
     assert weld is not None and mesh.n_verts == creature.n_verts
+
+
+def test_a_vertex_an_exporter_left_unused_at_a_split_seam_joins_its_copies(creature):
+    """Every face around vertex 0 takes a copy of it (a seam split): the original is left unused."""
+    around = np.flatnonzero((creature.faces == 0).any(axis=1))
+    faces = creature.faces.copy()
+    copy = creature.n_verts
+    faces[around] = np.where(faces[around] == 0, copy, faces[around])
+    split = Mesh(np.vstack([creature.verts, creature.verts[:1]]), faces, "split.obj")
+    with pytest.raises(MeshError, match="not used by any face"):
+        make_mesh(split.verts, split.faces)  # as given: a stray vertex
+    weld = welded(split)
+    assert weld.to_welded[0] == weld.to_welded[copy]  # the unused original is its copy's point
+    assert_rebuilt(weld, creature, np.append(np.arange(creature.n_verts), 0))
+    mesh, repaired, used_weld = mesh_of(split, "source", repair=False)
+    assert repaired is None and used_weld is not None and mesh.n_verts == creature.n_verts
+    # an unused vertex at a position of its own is still a stray vertex
+    stray = Mesh(np.vstack([split.verts, [[9.0, 9.0, 9.0]]]), faces, "stray.obj")
+    with pytest.raises(MeshError, match="not used by any face"):
+        mesh_of(stray, "source", repair=False)

@@ -12,8 +12,9 @@ first occurrence in the file. The faces keep their number and order.
 Only exact repeats are welded (an STL stores the shared corner of two facets twice with the
 same bits), and only where two faces meet on an edge by position (see
 :func:`_welded_numbering`): two vertices a scanner put a rounding error apart stay two vertices,
-and so do two coincident vertices of a valid surface. A welded mesh is used only where it is
-valid or the mesh as given is not (:func:`spidermatch.api.mesh_of`).
+and so do two coincident vertices of a valid surface. A vertex no face uses joins a used one at its
+position (the original of a vertex split along a seam, left unused by its exporter). A welded
+mesh is used only where it is valid or the mesh as given is not (:func:`spidermatch.api.mesh_of`).
 """
 
 from __future__ import annotations
@@ -147,6 +148,7 @@ def _welded_numbering(
             break
         crowded = more
         labels = _joined(verts.shape[0], tail, head, position, np.concatenate([paired, crowded]))
+    labels = _with_loose_repeats(labels, faces, position)
     n = verts.shape[0]
     first_of_label = np.full(labels.max() + 1, n, dtype=np.int64)
     np.minimum.at(first_of_label, labels, np.arange(n))
@@ -154,6 +156,29 @@ def _welded_numbering(
     rank = np.empty(first_of_label.size, dtype=np.int64)
     rank[np.argsort(first_of_label)] = np.arange(first_of_label.size)
     return rank[labels], to_file
+
+
+def _with_loose_repeats(labels: np.ndarray, faces: np.ndarray, position: np.ndarray) -> np.ndarray:
+    """``labels`` (V_file,) with each vertex no face uses joined to a used vertex at its position.
+
+    An exporter that splits vertices along a texture seam may leave the original of a split
+    vertex unused (every face around it took a copy); it is the same point as its copies, not a
+    stray vertex. Of several used vertices at that position (a surface touching itself) the
+    first in the file is taken; an unused vertex at a position of its own stays apart (and is
+    refused or repaired as any unused vertex).
+    """
+    used = np.zeros(labels.size, dtype=bool)
+    used[faces.reshape(-1)] = True
+    if used.all():
+        return labels
+    first_used = np.full(position.max() + 1, labels.size, dtype=np.int64)
+    np.minimum.at(first_used, position[used], np.flatnonzero(used))
+    loose = np.flatnonzero(~used)
+    twin = first_used[position[loose]]
+    joined = twin < labels.size
+    labels = labels.copy()
+    labels[loose[joined]] = labels[twin[joined]]
+    return np.unique(labels, return_inverse=True)[1].reshape(-1)  # numbered 0.. again
 
 
 def _joined(n: int, tail, head, position, paired: np.ndarray) -> np.ndarray:
