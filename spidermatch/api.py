@@ -238,7 +238,8 @@ def as_mesh(shape, role: str) -> Mesh:
 
     Parameters
     ----------
-    shape : str, os.PathLike, trimesh.Trimesh, tuple (verts (V, 3), faces (F, 3)) or Mesh
+    shape : str, os.PathLike, trimesh.Trimesh, trimesh.Scene, tuple (verts (V, 3), faces (F, 3)) or Mesh
+        A Scene's meshes are placed by its transforms and joined (as a GLB file is read).
     role : str
         "source" or "target", named in error messages of in-memory meshes.
 
@@ -250,6 +251,7 @@ def as_mesh(shape, role: str) -> Mesh:
         ``shape`` is none of the accepted kinds.
 
     """
+    shape = _one_trimesh(shape, role)
     if isinstance(shape, Mesh):
         return validated(shape)
     if isinstance(shape, (str, os.PathLike)):
@@ -261,9 +263,36 @@ def as_mesh(shape, role: str) -> Mesh:
     if hasattr(shape, "vertices") and hasattr(shape, "faces"):
         return _from_arrays(shape.vertices, shape.faces, f"{role} mesh ({type(shape).__name__})")
     raise TypeError(
-        f"{role}: expected a mesh file path, a trimesh.Trimesh, a (verts, faces) pair or a "
+        f"{role}: expected a mesh file path, a trimesh.Trimesh or Scene, a (verts, faces) pair or a "
         f"spidermatch Mesh, got {type(shape).__name__}"
     )
+
+
+def _one_trimesh(shape, role: str):
+    """A ``trimesh.Scene`` as one ``Trimesh`` (its meshes placed and joined as a file's), or ``shape``.
+
+    ``trimesh.load`` returns a Scene for GLB/GLTF files and for OBJ files with materials.
+
+    Raises
+    ------
+    MeshError
+        A scene without triangles, or a point cloud (vertices without faces).
+    """
+    import trimesh
+
+    if isinstance(shape, trimesh.Scene):
+        meshes = [item for item in shape.geometry.values() if isinstance(item, trimesh.Trimesh)]
+        if not meshes or not any(len(item.faces) for item in meshes):
+            raise MeshError(
+                f"{role} mesh (Scene): no triangle mesh in the scene ({len(shape.geometry)} geometries)"
+            )
+        return shape.to_mesh()
+    if isinstance(shape, trimesh.PointCloud):
+        raise MeshError(
+            f"{role} mesh (PointCloud): a point cloud of {len(shape.vertices)} points; "
+            "spidermatch needs a triangle mesh"
+        )
+    return shape
 
 
 def _unchecked_mesh(shape, role: str) -> Mesh | None:
@@ -271,6 +300,7 @@ def _unchecked_mesh(shape, role: str) -> Mesh | None:
     if isinstance(shape, Mesh):
         return shape
     try:
+        shape = _one_trimesh(shape, role)
         if isinstance(shape, (str, os.PathLike)):
             from spidermatch.geometry.io import load_mesh
 
@@ -397,7 +427,7 @@ def match(
 
     Parameters
     ----------
-    source, target : path, trimesh.Trimesh, (verts (V, 3), faces (F, 3)) or Mesh
+    source, target : path, trimesh.Trimesh or Scene, (verts (V, 3), faces (F, 3)) or Mesh
         One connected manifold triangle surface each. A triangle soup (an STL file, a
         vertex per face corner, seams split by an exporter) is welded into its surface
         (:mod:`spidermatch.geometry.weld`); ``matches``, ``dense_map`` and ``source_overlap``

@@ -279,3 +279,13 @@ def test_save_pictures_refuses_ground_truth_of_meshes_changed_before_matching(pa
     with pytest.raises(ValueError, match="welded, repaired or cut"):
         welded.save_pictures(tmp_path, pair.x.corr, pair.y.corr)
     assert {path.name for path in welded.save_pictures(tmp_path, viewer=False)} >= {"correspondence.png"}
+
+
+def test_a_trimesh_scene_is_matched_as_its_mesh_and_a_point_cloud_is_refused(pair, from_paths):
+    """``trimesh.load`` gives a Scene for GLB files and OBJ files with materials."""
+    source = trimesh.load(pair.source, process=False)
+    scene = trimesh.Scene(source)
+    result = spidermatch.match(scene, pair.target, resolution=RESOLUTION)
+    assert np.array_equal(result.matches, from_paths.matches)
+    with pytest.raises(MeshError, match=f"a point cloud of {len(source.vertices)} points"):
+        spidermatch.match(trimesh.PointCloud(source.vertices), pair.target)
