@@ -568,6 +568,32 @@ def test_a_folder_given_as_a_mesh_says_so(tmp_path):
         load_mesh(tmp_path / "shape.off")
 
 
+def test_a_file_holding_the_other_text_format_is_read_by_its_content(tmp_path, caplog):
+    mesh = make_mesh(*_tetrahedron(), "tet")
+    save_mesh(mesh, tmp_path / "tet.off")
+    save_mesh(mesh, tmp_path / "tet.obj")
+    (tmp_path / "tet.off").rename(tmp_path / "off_named.obj")
+    (tmp_path / "tet.obj").rename(tmp_path / "obj_named.off")
+    for name, held in (("off_named.obj", "OFF"), ("obj_named.off", "OBJ")):
+        read = load_mesh(tmp_path / name)
+        assert np.allclose(read.verts, mesh.verts) and np.array_equal(read.faces, mesh.faces)
+        assert f"{name}: holds an {held} mesh, not what its name says" in caplog.text
+
+
+@pytest.mark.parametrize("name", ["shape.off", "shape.off.gz"])
+def test_a_gzipped_mesh_is_named_as_compressed(tmp_path, name):
+    import gzip
+
+    (tmp_path / name).write_bytes(gzip.compress(b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"))
+    with pytest.raises(MeshError, match=f"{name}: gzip-compressed; decompress it first"):
+        load_mesh(tmp_path / name)
+
+
+def _tetrahedron():
+    verts = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    return verts, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+
+
 def test_a_point_cloud_file_is_named_as_one(tmp_path):
     points = np.random.default_rng(0).normal(size=(50, 3))
     trimesh.PointCloud(points).export(tmp_path / "scan.ply")

@@ -47,15 +47,20 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
         raise MeshError(f"{name}: is a folder, not a mesh file")
     if not path.is_file():
         raise MeshError(f"{name}: no such file")
+    if path.suffix.lower() == ".gz":
+        raise MeshError(f"{name}: gzip-compressed; decompress it first (gunzip, or Python's gzip module)")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise MeshError(
             f"{name}: unsupported mesh type '{path.suffix}' (expected one of {', '.join(MESH_SUFFIXES)})"
         )
     if path.stat().st_size == 0:
         raise MeshError(f"{name}: empty mesh (the file is empty)")
+    suffix = _content_suffix(path)
     readers = {".off": read_off, ".obj": read_obj}
-    verts, faces, *notes = readers.get(path.suffix.lower(), _read_with_trimesh)(path)
+    verts, faces, *notes = readers.get(suffix, _read_with_trimesh)(path)
     notes = tuple(notes[0]) if notes else ()
+    if suffix != path.suffix.lower():
+        notes = (f"{name}: holds an {suffix[1:].upper()} mesh, not what its name says; read as one", *notes)
     for note in notes:
         logger.warning("%s", note)
     if not validate:
@@ -69,6 +74,42 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
         if weld is None:
             raise
         raise MeshError(soup_refusal(error, weld)) from None
+
+
+GZIP_MAGIC = b"\x1f\x8b"
+
+
+def _content_suffix(path: Path) -> str:
+    """The reader's suffix for ``path``: its own, or ``.off``/``.obj`` when it holds the other text format.
+
+    Raises
+    ------
+    MeshError
+        The file is gzip-compressed (a ``.off.gz`` renamed, a download not yet unpacked).
+    """
+    suffix = path.suffix.lower()
+    with path.open("rb") as handle:
+        head = handle.read(4096)
+    if head.startswith(GZIP_MAGIC):
+        raise MeshError(f"{path}: gzip-compressed; decompress it first (gunzip, or Python's gzip module)")
+    if suffix not in (".off", ".obj"):
+        return suffix
+    first = _first_token(head)
+    if first is not None and OFF_KEYWORD.fullmatch(first):
+        return ".off"
+    if first in ("v", "vt", "vn", "f", "o", "g", "mtllib", "usemtl", "s"):
+        return ".obj"
+    return suffix
+
+
+def _first_token(head: bytes) -> str | None:
+    """The first token of the first line with content (``#`` starts a comment) in ``head``, or None."""
+    text = head.decode("utf-8", errors="replace").removeprefix("\ufeff")
+    for line in text.splitlines():
+        tokens = line.split("#", 1)[0].split()
+        if tokens:
+            return tokens[0]
+    return None
 
 
 def _text_of(path: Path) -> str:
