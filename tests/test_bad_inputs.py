@@ -739,6 +739,9 @@ def test_real_options_and_group_choices_are_not_flagged():
     overrides = ["features=learned", "features.adapt_steps=20", "dense.radius=3", "hydra/launcher=joblib"]
     assert unknown_option_problem("match", [*overrides, "resolution=100", "hydra.run.dir=x"]) is None
     assert unknown_option_problem("eval", ["dataset=d", "n_pairs=3"]) is None
+    # a value Hydra cannot take (an unquoted comma) leaves the groups unknown: no guess at the names
+    chosen = ["source=in/x,y.off", "features=learned", "features.checkpoint=n.pt"]
+    assert unknown_option_problem("match", chosen) is None
 
 
 # the quality verdict without ground truth

@@ -86,7 +86,7 @@ def test_path_options_hydra_would_misread_are_quoted():
 
     from spidermatch.cli.options import quoted_paths
 
-    names = ["in/ünï/形状é.off", "a (1).off", "in/a[1].off", "it's.pt", "x=y/~z.off", "plain/name.off"]
+    names = ["in/ünï/形状é.off", "a (1).off", "in/x,y.off", "it's.pt", "x=y/~z.off", "plain/name.off"]
     argv = [f"source={names[0]}", f"target={names[1]}", f"source_corr={names[2]}", f"checkpoint={names[3]}"]
     argv += [f"data.root={names[4]}", f"target_corr={names[5]}", "resolution=300"]
     quoted = quoted_paths(argv)

@@ -90,6 +90,14 @@ def _key(override: str) -> str:
     return override.split("=", 1)[0].lstrip("+~")
 
 
+def config_groups() -> set[str]:
+    """Names of the configuration's groups (``features``, ``solver``, ...): the folders of ``conf``."""
+    from importlib.resources import files
+
+    folders = files("conf").iterdir()
+    return {entry.name for entry in folders if entry.is_dir() and not entry.name.startswith("_")}
+
+
 def unknown_option_problem(config_name: str, overrides: list[str]) -> str | None:
     """An override that names no option of the configuration, with the nearest real name.
 
@@ -100,12 +108,10 @@ def unknown_option_problem(config_name: str, overrides: list[str]) -> str | None
     import difflib
 
     plain = [item for item in overrides if "=" in item and not item.startswith(("+", "~"))]
-    groups = [item for item in plain if "." not in _key(item)]
+    groups = [item for item in plain if _key(item).split("/")[0] in config_groups()]  # also train/loss=
     cfg, _ = compose_problem(config_name, groups)
-    if cfg is None:
-        cfg, _ = compose_problem(config_name, [])
-    if cfg is None:
-        return None
+    if cfg is None:  # a value Hydra cannot take: the full composition names it (a guess here could be
+        return None  # wrong: without the chosen groups, their options would look unknown)
     names = option_names(cfg)
     for item in overrides:
         key = _key(item)
@@ -130,9 +136,10 @@ def quoted_paths(argv: list[str]) -> list[str]:
 
     Hydra's override grammar refuses letters outside ASCII, parentheses, ``=``, ``~`` and
     apostrophes in an unquoted value and reads a comma as a sweep, all common in file names
-    (``scan (1).off``, ``Körper.ply``). A value that Hydra would not read back exactly as given
-    is put in single quotes (an apostrophe in it escaped); a value already quoted is left alone,
-    and so is every argument of a ``-m`` sweep (whose commas list values).
+    (``scan (1).off``, ``Körper.ply``, ``x,y.off``). A value that Hydra would not read back exactly
+    as given is put in single quotes (an apostrophe in it escaped); a value already quoted is
+    left alone, and so is every argument of a ``-m`` sweep (whose commas list values) and a value
+    Hydra reads as null, a number or a list (``target=[a,b]``, refused later as not one path).
     """
     if "-m" in argv or "--multirun" in argv:  # a sweep may list paths with commas: left to the user
         return list(argv)
@@ -144,13 +151,20 @@ def _quoted_path(argument: str) -> str:
     if not separator or key.lstrip("+~") not in PATH_KEYS or value[:1] in ("'", '"') or not value:
         return argument
     read = _hydra_value(argument)
-    if read == value or (read is not _UNREADABLE and not isinstance(read, str)):
-        return argument  # read as given, or meant as null, a number, a list or a sweep: Hydra's to read
+    if read == value or (read is not _UNREADABLE and not isinstance(read, str) and not _is_sweep(read)):
+        return argument  # read as given, or meant as null, a number or a list: Hydra's to read
     quoted = f"{key}='" + value.replace("'", "\\'") + "'"
     return quoted if _hydra_value(quoted) == value else argument
 
 
 _UNREADABLE = object()
+
+
+def _is_sweep(value) -> bool:
+    """Whether Hydra read a value as a sweep (``a,b``): a comma in a file name, outside ``-m`` runs."""
+    from hydra.core.override_parser.types import Sweep
+
+    return isinstance(value, Sweep)
 
 
 def _hydra_value(argument: str):
