@@ -594,6 +594,22 @@ def _tetrahedron():
     return verts, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
 
 
+def test_float32_coordinates_far_from_the_origin_that_lose_the_shape_are_refused(tmp_path):
+    body = SyntheticShapes(n_shapes=1, n_verts=700).load("creature_000").mesh
+    for offset, kept in ((1e6, False), (1e3, True)):  # float32 steps of 0.06 and 6e-5 there
+        moved = (body.verts + [offset, 0.0, 0.0]).astype(np.float32)
+        trimesh.Trimesh(moved, body.faces, process=False).export(tmp_path / "far.ply")
+        if kept:
+            assert load_mesh(tmp_path / "far.ply").n_verts == body.n_verts
+        else:
+            with pytest.raises(
+                MeshError, match=r"far.ply: coordinates in single precision \(float32\) reach 1e\+06"
+            ):
+                load_mesh(tmp_path / "far.ply")
+    double = Mesh(body.verts + [1e6, 0.0, 0.0], body.faces, "double")  # the same offset in float64: kept
+    assert make_mesh(double.verts, double.faces, "double").n_verts == body.n_verts
+
+
 def test_a_point_cloud_file_is_named_as_one(tmp_path):
     points = np.random.default_rng(0).normal(size=(50, 3))
     trimesh.PointCloud(points).export(tmp_path / "scan.ply")
