@@ -188,3 +188,22 @@ def test_training_stopped_during_its_data_preparation_says_so(tmp_path):
     assert process.returncode == 143, err[-2000:]
     assert "stopped by SIGTERM during the data preparation; nothing was trained" in err
     assert "nothing was trained" in (tmp_path / "run" / "cli.log").read_text()
+
+
+def test_a_sweep_with_a_failed_job_says_which_and_exits_with_its_code(tmp_path):
+    root = write_dataset(SyntheticShapes(n_shapes=2, n_verts=700), tmp_path / "data")
+    (tmp_path / "empty.off").write_text("")
+    targets = f"{root}/off/creature_001.off,{tmp_path / 'empty.off'}"
+    args = ["-m", f"source={root}/off/creature_000.off", f"target={targets}", "resolution=60",
+            "output.png=false", "dense.enabled=false", f"hydra.sweep.dir={tmp_path / 'sweep'}"]  # fmt: skip
+    out = run_command("spidermatch.cli.main:match_main", args, tmp_path)
+    said = out.stdout + out.stderr
+    assert out.returncode == 2, said[-2000:]  # Hydra alone exits 0 whatever its jobs returned
+    assert f"sweep job 1 failed (exit 2): {tmp_path / 'sweep' / '1'}" in said
+    assert "1 of 2 jobs succeeded; failed: 1 (exit 2)" in said
+    assert (tmp_path / "sweep" / "0" / ".hydra" / "exit_code").read_text() == "0\n"
+    good = ["-m", f"source={root}/off/creature_000.off", f"target={root}/off/creature_001.off",
+            "resolution=50,60", "output.png=false", "dense.enabled=false",
+            f"hydra.sweep.dir={tmp_path / 'good'}"]  # fmt: skip
+    out = run_command("spidermatch.cli.main:match_main", good, tmp_path)
+    assert out.returncode == 0 and "2 of 2 jobs succeeded" in out.stdout + out.stderr

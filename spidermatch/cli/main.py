@@ -15,6 +15,7 @@ from spidermatch import shutdown
 from spidermatch.cli.evaluate import run_eval
 from spidermatch.cli.match import run_match
 from spidermatch.cli.outputs import refuse_foreign_folder
+from spidermatch.cli.sweep import record_job_code
 from spidermatch.shutdown import write_atomic
 
 logger = logging.getLogger("spidermatch.match")
@@ -85,7 +86,10 @@ def _hydra_app(run, config_name: str, check_folder=None):
     def app(cfg) -> None:
         configure_logging(cfg.log_level)
         hydra_cfg = HydraConfig.get()
-        code = _held_run(run, cfg, hydra_cfg, Path(hydra_cfg.runtime.output_dir), check_folder)
+        output_dir = Path(hydra_cfg.runtime.output_dir)
+        code = _held_run(run, cfg, hydra_cfg, output_dir, check_folder)
+        if hydra_cfg.mode == RunMode.MULTIRUN:
+            record_job_code(output_dir, code)  # the sweep's end reports it (spidermatch.cli.sweep)
         if shutdown.native_work_abandoned():
             # a solve left running after a signal: end now (all files are written)
             logging.shutdown()
@@ -117,6 +121,7 @@ def match_main() -> None:
     sys.argv[1:] = file_run_overrides(quoted_paths(sys.argv[1:]))
     exit_on_bad_command_line("match", sys.argv[1:])
     _hydra_app(run_match, "match", refuse_foreign_folder)()
+    _exit_after_sweep()
 
 
 def eval_main() -> None:
@@ -126,6 +131,15 @@ def eval_main() -> None:
     sys.argv[1:] = quoted_paths(sys.argv[1:])
     exit_on_bad_command_line("eval", sys.argv[1:])
     _hydra_app(run_eval, "eval")()
+    _exit_after_sweep()
+
+
+def _exit_after_sweep() -> None:
+    """Exit with the first failed job's code after a sweep (Hydra itself exits 0 whatever they returned)."""
+    from spidermatch.cli import sweep
+
+    if sweep.sweep_code:
+        sys.exit(sweep.sweep_code)
 
 
 if __name__ == "__main__":
