@@ -5,6 +5,7 @@ import subprocess
 import sys
 import time
 
+import pytest
 from conftest import composed
 
 from spidermatch.cli.batch import select_pairs
@@ -173,3 +174,19 @@ def test_sweep_with_joblib_launcher_and_collect(tmp_path):
     assert len(table) == 3
     assert table[1].startswith("curve.seed=0,0,") and table[2].startswith("curve.seed=1,1,")
     assert (sweep_dir / "curves.png").is_file()
+
+
+def test_a_joblib_sweep_with_a_failed_job_exits_with_its_code_and_collect_lists_it(tmp_path):
+    command = [sys.executable, "-m", "spidermatch.cli.eval", "-m", "hydra/launcher=joblib",
+               "hydra.launcher.n_jobs=2", *SMALL, "synthetic.n_shapes=2", "n_pairs=1",
+               f"dataset=synthetic,{tmp_path / 'nothing here'}", "name=half"]  # fmt: skip
+    (tmp_path / "nothing here").mkdir()
+    finished = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    said = finished.stdout + finished.stderr
+    assert finished.returncode == 2, said[-2000:]  # the jobs ran in joblib's workers
+    assert "1 of 2 jobs succeeded; failed: 1 (exit 2)" in said
+    sweep_dir = tmp_path / "multirun" / "eval" / "half"
+    with pytest.raises(SystemExit, match=r"1 of 2 runs failed: 1 \(exit 2, no summary\)"):
+        collect_main([str(sweep_dir), "--no-plot"])
+    rows = (sweep_dir / "collected.csv").read_text().splitlines()
+    assert len(rows) == 3 and rows[2].startswith("dataset=") and rows[2].endswith(",2")

@@ -2,7 +2,10 @@
 
 Every ``summary.json`` below a folder becomes one row (the run's settings, pairs,
 failures, mean and median geodesic error, median solve time), written to
-``collected.csv``; all runs' cumulative error curves go into ``curves.png``.
+``collected.csv``; all runs' cumulative error curves go into ``curves.png``. A sweep job that
+ended without a summary (its ``.hydra/exit_code`` not 0: no meshes found, a bad option) gets a row
+too; every row has the job's exit code, and the command exits with 1 after writing the table when a
+job failed.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ COLUMNS = (
     "mean_error",
     "median_error",
     "median_solve_s",
+    "exit_code",
 )
 
 
@@ -58,12 +62,40 @@ def run_labels(run_dirs: list[Path], root: Path) -> list[str]:
     return labels
 
 
+def job_exit_code(run_dir: Path) -> int | None:
+    """The exit code a sweep job recorded in ``.hydra/exit_code`` (None: not recorded)."""
+    try:
+        return int((run_dir / ".hydra" / "exit_code").read_text().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def failed_jobs(root: Path) -> list[Path]:
+    """Eval sweep jobs below ``root`` that recorded a non-zero exit code and wrote no summary.
+
+    A folder with a ``result.json`` is a match run's (a ``spidermatch-match -m`` job), not an eval's.
+    """
+    return [
+        marker.parent
+        for marker in root.rglob(".hydra")
+        if not any((marker.parent / name).is_file() for name in ("summary.json", "result.json"))
+        and job_exit_code(marker.parent) not in (None, 0)
+    ]
+
+
 def collect(root: Path) -> list[dict]:
-    """One row per ``summary.json`` found below ``root``, in the order of the runs' folders."""
-    paths = sorted(root.rglob("summary.json"), key=lambda p: natural_key(p.parent.relative_to(root)))
-    labels = run_labels([path.parent for path in paths], root)
+    """One row per ``summary.json`` below ``root`` and per failed job without one, in folder order."""
+    run_dirs = {path.parent for path in root.rglob("summary.json")} | set(failed_jobs(root))
+    run_dirs = sorted(run_dirs, key=lambda folder: natural_key(folder.relative_to(root)))
+    labels = run_labels(run_dirs, root)
     rows = []
-    for path, label in zip(paths, labels):
+    for run_dir, label in zip(run_dirs, labels):
+        if not (run_dir / "summary.json").is_file():
+            row = dict.fromkeys(COLUMNS)
+            row.update(run=label, folder=str(run_dir.relative_to(root)), exit_code=job_exit_code(run_dir))
+            rows.append(row)
+            continue
+        path = run_dir / "summary.json"
         summary = json.loads(path.read_text())
         settings = summary.get("settings", {})
         rows.append(
@@ -79,6 +111,7 @@ def collect(root: Path) -> list[dict]:
                 "mean_error": summary["geodesic_error"]["mean"],
                 "median_error": summary["geodesic_error"]["median"],
                 "median_solve_s": summary["solve_s"]["median"],
+                "exit_code": job_exit_code(run_dir),
             }
         )
     return rows
@@ -98,7 +131,7 @@ def save_collected_curves(root: Path, rows: list[dict]) -> Path | None:
     """All runs' cumulative error curves in ``root/curves.png``; None if no run has errors."""
     from spidermatch.report.curves import save_error_curves
 
-    runs = {r["run"]: collect_errors(root / r["folder"]) for r in rows}
+    runs = {r["run"]: collect_errors(root / r["folder"]) for r in rows if r["pairs"] is not None}
     runs = {label: errors for label, errors in runs.items() if errors.size}
     return save_error_curves(runs, root / "curves.png") if runs else None
 
@@ -113,7 +146,9 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     rows = collect(args.root)
     if not rows:
-        raise SystemExit(f"{args.root}: no summary.json found below this folder")
+        matches = next(args.root.rglob("result.json"), None) is not None
+        hint = " (it holds spidermatch-match runs; collect reads spidermatch-eval runs)" if matches else ""
+        raise SystemExit(f"{args.root}: no summary.json found below this folder{hint}")
     print(" | ".join(COLUMNS))
     for row in rows:
         print(" | ".join(f"{row[c]:.4f}" if isinstance(row[c], float) else str(row[c]) for c in COLUMNS))
@@ -122,6 +157,13 @@ def main(argv: list[str] | None = None) -> None:
         curves = save_collected_curves(args.root, rows)
         if curves is not None:
             print(f"wrote {curves}")
+    failed = [row for row in rows if row["exit_code"] not in (None, 0)]
+    if failed:
+        names = ", ".join(
+            f"{row['folder']} (exit {row['exit_code']}{'' if row['pairs'] is not None else ', no summary'})"
+            for row in failed
+        )
+        raise SystemExit(f"{len(failed)} of {len(rows)} runs failed: {names}")
 
 
 if __name__ == "__main__":
