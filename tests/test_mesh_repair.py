@@ -159,7 +159,9 @@ def test_the_command_line_repairs_a_raw_source_and_writes_its_own_indices(tmp_pa
     with np.load(out / "dense_map.npz") as dense:
         assert np.array_equal(dense["source_vertex"], np.arange(n))
     rows = np.loadtxt(out / "dense_matches.csv", delimiter=",", skiprows=1, dtype=np.int64)
-    assert np.array_equal(rows[:, 0], np.arange(n))
+    n_file = raw.n_verts  # the body's n vertices, then the debris'
+    assert n_file > n and np.array_equal(rows[:, 0], np.arange(n_file))  # a row per vertex, in order
+    assert (rows[:n, 1] >= 0).all() and (rows[n:, 1] == -1).all()  # left out: no image
 
 
 def test_an_overlap_of_a_repaired_source_is_told_in_the_source_own_indices():

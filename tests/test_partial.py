@@ -303,7 +303,11 @@ def test_the_command_line_matches_two_parts_and_writes_the_source_own_indices(tm
         faces = lower.mesh.faces[dense["inverse_face"]]
         assert np.all(np.isin(faces, ids))
     rows = np.loadtxt(out / "dense_matches.csv", delimiter=",", skiprows=1, dtype=np.int64)
-    assert np.array_equal(np.sort(rows[:, 0]), np.sort(ids))
+    # a row per source vertex, in order, so that reading by position is right; -1 outside the piece
+    assert np.array_equal(rows[:, 0], np.arange(lower.mesh.n_verts))
+    assert np.array_equal(np.flatnonzero(rows[:, 1] >= 0), np.sort(ids))
+    with np.load(out / "dense_map.npz") as dense:
+        assert np.array_equal(rows[dense["source_vertex"], 1], dense["vertex"])
     matches = np.loadtxt(out / "matches.csv", delimiter=",", skiprows=1, dtype=np.int64)
     assert np.all(np.isin(matches[:, 0], ids))
 

@@ -49,7 +49,7 @@ class MatchInputs:
     description: str
     partial: bool = False
     overlap: bool = False
-    piece_of: tuple | None = None  # (vertex ids (V,), face ids (F,)) of ``source`` in the user's source
+    piece_of: tuple | None = None  # (vertex ids, face ids, vertex count) of a matched piece of the user's
     target_of: tuple | None = None  # (vertex ids, face ids, vertex count) of a repaired target in the user's
     # a user's mesh with repeated vertices, matched welded (the files name the file's vertices)
     source_weld: Weld | None = None
@@ -118,7 +118,7 @@ def with_repaired(inputs: MatchInputs, repaired: Repair, role: str) -> MatchInpu
     )
     mesh = dataclasses.replace(piece.mesh, notes=(repaired.note, *piece.mesh.notes))
     if role == "source":
-        where = {"piece_of": (piece.to_original, repaired.face_ids)}
+        where = {"piece_of": (piece.to_original, repaired.face_ids, repaired.n_original)}
     else:
         where = {"target_of": (piece.to_original, repaired.face_ids, repaired.n_original)}
     return dataclasses.replace(
@@ -320,14 +320,16 @@ def overlap_inputs(inputs: MatchInputs, feat_x: np.ndarray, feat_y: np.ndarray, 
         piece, inputs.source.n_verts, inputs.source_corr, inputs.target_corr
     )
     vertex_ids, face_ids = piece.to_original, original_faces(piece, inputs.source)
+    n_user = inputs.source.n_verts
     if inputs.piece_of is not None:  # the overlap of a repaired source: in the user's indices
         vertex_ids, face_ids = inputs.piece_of[0][vertex_ids], inputs.piece_of[1][face_ids]
+        n_user = inputs.piece_of[2]
     cut = dataclasses.replace(
         inputs,
         source=piece.mesh,
         source_corr=source_corr,
         target_corr=target_corr,
-        piece_of=(vertex_ids, face_ids),
+        piece_of=(vertex_ids, face_ids, n_user),
     )
     return cut, feat_x[piece.to_original]
 

@@ -55,17 +55,19 @@ def write_dense_outputs(
 ) -> list[Path]:
     """Write ``dense_matches.csv``, ``dense_map.npz`` and, with an inverse map, ``dense_inverse_matches.csv``.
 
-    ``dense_matches.csv`` has a ``source_vertex,target_vertex`` row per source vertex.
+    ``dense_matches.csv`` has a ``source_vertex,target_vertex`` row per vertex of the source as
+    given, in order (-1 as the target of a vertex outside a matched piece).
 
     Parameters
     ----------
     output_dir : Path
     dense : DenseMap
-    piece : (np.ndarray (V_piece,), np.ndarray (F_piece,)), optional
+    piece : (np.ndarray (V_piece,), np.ndarray (F_piece,), int), optional
         When ``dense`` maps a piece of the user's source (``partial=both``, ``repair=true``):
-        the source's vertex and face index of each of the piece's. The files then name the
-        source's own vertices and faces: one CSV row per vertex of the piece, ``source_vertex``
-        (V_piece,) in the archive, and the inverse map onto the source's faces.
+        the source's vertex and face index of each of the piece's, and the source's vertex
+        count V_X. The files then name the source's own vertices and faces: a CSV row per
+        source vertex (target -1 outside the piece), ``source_vertex`` (V_piece,) in the
+        archive beside the piece's images, and the inverse map onto the source's faces.
     target_piece : (np.ndarray (V_T,), np.ndarray (F_T,), int), optional
         When ``dense`` maps onto a repaired piece of the user's target: the target's vertex and
         face index of each of the piece's, and the target's vertex count V_Y. The files then
@@ -83,7 +85,7 @@ def write_dense_outputs(
     dense = dense if target_piece is None else on_user_target(dense, *target_piece)
     source_weld, target_weld = welds
     dense = dense if target_weld is None else on_file_target(dense, target_weld)
-    vertex_ids, face_ids = piece if piece is not None else (None, None)
+    vertex_ids, face_ids, n_source = piece if piece is not None else (None, None, None)
     inverse_ids = vertex_ids  # where a piece vertex lies in the source as given (None: itself)
     rows = None
     if source_weld is not None:
@@ -98,7 +100,13 @@ def write_dense_outputs(
         if rows is None
         else (dense.vertex[rows], dense.face[rows], dense.bary[rows])
     )
-    _write_vertex_pairs(csv_path, image_vertex, "source_vertex,target_vertex", sources=vertex_ids)
+    if vertex_ids is None:
+        _write_vertex_pairs(csv_path, image_vertex, "source_vertex,target_vertex")
+    else:  # a row per source vertex (of the file, where it was welded): -1 outside the piece
+        n_rows = source_weld.n_file if source_weld is not None else n_source
+        every = np.full(n_rows, -1, dtype=np.int64)
+        every[vertex_ids] = image_vertex
+        _write_vertex_pairs(csv_path, every, "source_vertex,target_vertex")
     extra = {} if dense.covered is None else {"target_covered": dense.covered}
     if vertex_ids is not None:
         extra["source_vertex"] = vertex_ids
