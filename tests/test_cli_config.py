@@ -207,3 +207,20 @@ def test_a_sweep_with_a_failed_job_says_which_and_exits_with_its_code(tmp_path):
             f"hydra.sweep.dir={tmp_path / 'good'}"]  # fmt: skip
     out = run_command("spidermatch.cli.main:match_main", good, tmp_path)
     assert out.returncode == 0 and "2 of 2 jobs succeeded" in out.stdout + out.stderr
+
+
+def test_runs_started_in_the_same_second_get_folders_of_their_own(tmp_path, monkeypatch):
+    from spidermatch.cli.options import claimed_run_folder
+
+    monkeypatch.chdir(tmp_path)
+    argv = ["source=a.off", "target=b.off"]
+    first, second = (claimed_run_folder("match", argv) for _ in range(2))
+    folders = [args[-1].split("=", 1)[1] for args in (first, second)]
+    assert all(args[:2] == argv for args in (first, second)) and folders[0] != folders[1]
+    assert all((tmp_path / folder).is_dir() for folder in folders)
+    same = Path(folders[0]).name
+    taken = tmp_path / "outputs" / "match"
+    assert {path.name for path in taken.iterdir()} <= {same, f"{same}_2", Path(folders[1]).name}
+    given = [*argv, "hydra.run.dir=mine"]
+    assert claimed_run_folder("match", given) == given and not (tmp_path / "mine").exists()
+    assert claimed_run_folder("match", ["-m", *argv]) == ["-m", *argv]  # a sweep: Hydra's folders

@@ -177,6 +177,37 @@ def _hydra_value(argument: str):
         return _UNREADABLE
 
 
+MAX_FOLDER_SUFFIX = 1000
+
+
+def claimed_run_folder(config_name: str, argv: list[str]) -> list[str]:
+    """``argv`` with ``hydra.run.dir`` set to a fresh folder made for this run, when none was given.
+
+    The default run folder is named by the second the run started, so two runs started in the
+    same second (a script launching matches in parallel) chose the same folder and one was
+    refused. The folder is made here (an atomic ``mkdir``); when it exists, ``_2``, ``_3``, ...
+    are tried. Sweeps, runs with Hydra flags and a folder that cannot be made are left as they
+    are (Hydra, or the lock, reports them).
+    """
+    if any(arg.startswith("-") for arg in argv) or any(_key(arg) == "hydra.run.dir" for arg in argv):
+        return list(argv)
+    cfg, problem = compose_problem(config_name, list(argv))
+    folder = None if problem else _run_folder(cfg)
+    if not folder:
+        return list(argv)
+    for number in range(1, MAX_FOLDER_SUFFIX + 1):
+        candidate = Path(folder if number == 1 else f"{folder}_{number}")
+        try:
+            candidate.parent.mkdir(parents=True, exist_ok=True)
+            candidate.mkdir()
+        except FileExistsError:
+            continue
+        except OSError:
+            return list(argv)
+        return [*argv, *quoted_paths([f"hydra.run.dir={candidate}"])]
+    return list(argv)
+
+
 def exit_on_bad_command_line(config_name: str, argv: list[str]) -> None:
     """Exit 2 for an unknown option or value syntax, 6 for an unusable run folder (single runs).
 
