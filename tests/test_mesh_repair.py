@@ -5,6 +5,7 @@ import pytest
 from conftest import composed, result_of
 
 import spidermatch
+from spidermatch.api import mesh_of
 from spidermatch.cli.match import run_match
 from spidermatch.data.synthetic import make_creature
 from spidermatch.geometry.descriptors import WKSExtractor
@@ -79,6 +80,11 @@ def test_duplicate_faces_are_named_and_only_the_copies_dropped(creature):
     raw = Mesh(creature.verts, np.vstack([creature.faces, copies]), "doubled.off")
     with pytest.raises(MeshError, match=r"doubled.off: 3 duplicate faces .*face \d+ repeats face 5"):
         make_mesh(raw.verts, raw.faces, raw.name)
+    with pytest.raises(MeshError) as refused:  # as matching refuses it: what repair=true keeps, said once
+        mesh_of(raw, "source", repair=False)
+    assert str(refused.value).count("repair=true") == 1 and "duplicates of other faces 3" in str(
+        refused.value
+    )
     repaired = largest_clean_piece(raw)
     assert "duplicates of other faces 3" in repaired.summary and "non-manifold" not in repaired.summary
     assert repaired.piece.mesh.n_faces == creature.n_faces and repaired.piece.kept_area == pytest.approx(1.0)

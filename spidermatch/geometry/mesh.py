@@ -381,7 +381,7 @@ def _check_duplicate_faces(faces: np.ndarray, name: str) -> None:
         original = int(np.flatnonzero((np.sort(faces, axis=1) == np.sort(first)).all(axis=1))[0])
         raise MeshError(
             f"{name}: {copies.size} duplicate faces (the three vertices of another face again; first: face "
-            f"{copies[0]} repeats face {original}, {first.tolist()}); repair=true drops the copies"
+            f"{copies[0]} repeats face {original}, {first.tolist()})"  # matching adds what repair=true keeps
         )
 
 
