@@ -13,6 +13,8 @@ _LAZY = {
     "Mesh": "spidermatch.geometry.mesh",
     "MeshError": "spidermatch.geometry.mesh",
     "MatchSettings": "spidermatch.pipeline",
+    "SolverOptions": "spidermatch.solve.types",
+    "DenseSettings": "spidermatch.dense.settings",
     "MatchError": "spidermatch.pipeline",
     "OptionError": "spidermatch.validate",
 }

@@ -61,7 +61,17 @@ MATCHING_FIELDS = [
 
 
 def test_the_package_exports_match_and_its_result():
-    for name in ("match", "Matching", "load_mesh", "Mesh", "MeshError", "MatchSettings", "MatchError"):
+    for name in (
+        "match",
+        "Matching",
+        "load_mesh",
+        "Mesh",
+        "MeshError",
+        "MatchSettings",
+        "MatchError",
+        "SolverOptions",
+        "DenseSettings",
+    ):
         assert name in spidermatch.__all__ and getattr(spidermatch, name) is not None
     assert list(inspect.signature(spidermatch.match).parameters) == MATCH_PARAMETERS
     assert [field.name for field in dataclasses.fields(spidermatch.Matching)] == MATCHING_FIELDS
