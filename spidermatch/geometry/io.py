@@ -48,7 +48,7 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
     if not path.is_file():
         raise MeshError(f"{name}: no such file")
     if path.suffix.lower() == ".gz":
-        raise MeshError(f"{name}: gzip-compressed; decompress it first (gunzip, or Python's gzip module)")
+        raise MeshError(GZIP_REFUSAL.format(path=name))
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise MeshError(
             f"{name}: unsupported mesh type '{path.suffix}' (expected one of {', '.join(MESH_SUFFIXES)})"
@@ -77,6 +77,7 @@ def load_mesh(path: str | os.PathLike, validate: bool = True) -> Mesh:
 
 
 GZIP_MAGIC = b"\x1f\x8b"
+GZIP_REFUSAL = "{path}: gzip-compressed; decompress it first (gunzip, or Python's gzip module)"
 
 
 def _content_suffix(path: Path) -> str:
@@ -91,7 +92,7 @@ def _content_suffix(path: Path) -> str:
     with path.open("rb") as handle:
         head = handle.read(4096)
     if head.startswith(GZIP_MAGIC):
-        raise MeshError(f"{path}: gzip-compressed; decompress it first (gunzip, or Python's gzip module)")
+        raise MeshError(GZIP_REFUSAL.format(path=path))
     if suffix not in (".off", ".obj"):
         return suffix
     first = _first_token(head)
