@@ -16,6 +16,7 @@ import json
 from pathlib import Path
 
 from spidermatch.cli.batch import collect_errors
+from spidermatch.cli.sweep import natural_key, recorded_code
 
 COLUMNS = (
     "run",
@@ -31,11 +32,6 @@ COLUMNS = (
     "median_solve_s",
     "exit_code",
 )
-
-
-def natural_key(relative: Path) -> list:
-    """Sort key that puts sweep job folders 2 before 10."""
-    return [int(part) if part.isdigit() else part for part in relative.parts]
 
 
 def run_overrides(run_dir: Path) -> list[str]:
@@ -62,14 +58,6 @@ def run_labels(run_dirs: list[Path], root: Path) -> list[str]:
     return labels
 
 
-def job_exit_code(run_dir: Path) -> int | None:
-    """The exit code a sweep job recorded in ``.hydra/exit_code`` (None: not recorded)."""
-    try:
-        return int((run_dir / ".hydra" / "exit_code").read_text().strip())
-    except (OSError, ValueError):
-        return None
-
-
 def failed_jobs(root: Path) -> list[Path]:
     """Eval sweep jobs below ``root`` that recorded a non-zero exit code and wrote no summary.
 
@@ -79,7 +67,7 @@ def failed_jobs(root: Path) -> list[Path]:
         marker.parent
         for marker in root.rglob(".hydra")
         if not any((marker.parent / name).is_file() for name in ("summary.json", "result.json"))
-        and job_exit_code(marker.parent) not in (None, 0)
+        and recorded_code(marker.parent) not in (None, 0)
     ]
 
 
@@ -92,7 +80,7 @@ def collect(root: Path) -> list[dict]:
     for run_dir, label in zip(run_dirs, labels):
         if not (run_dir / "summary.json").is_file():
             row = dict.fromkeys(COLUMNS)
-            row.update(run=label, folder=str(run_dir.relative_to(root)), exit_code=job_exit_code(run_dir))
+            row.update(run=label, folder=str(run_dir.relative_to(root)), exit_code=recorded_code(run_dir))
             rows.append(row)
             continue
         path = run_dir / "summary.json"
@@ -111,7 +99,7 @@ def collect(root: Path) -> list[dict]:
                 "mean_error": summary["geodesic_error"]["mean"],
                 "median_error": summary["geodesic_error"]["median"],
                 "median_solve_s": summary["solve_s"]["median"],
-                "exit_code": job_exit_code(run_dir),
+                "exit_code": recorded_code(run_dir),
             }
         )
     return rows

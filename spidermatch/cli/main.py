@@ -119,8 +119,8 @@ def match_main() -> None:
     from spidermatch.cli.options import claimed_run_folder, exit_on_bad_command_line, quoted_paths
 
     sys.argv[1:] = file_run_overrides(quoted_paths(sys.argv[1:]))
-    exit_on_bad_command_line("match", sys.argv[1:])
-    sys.argv[1:] = claimed_run_folder("match", sys.argv[1:])  # two runs in one second: two folders
+    folder = exit_on_bad_command_line("match", sys.argv[1:])
+    sys.argv[1:] = claimed_run_folder("match", sys.argv[1:], folder)  # two runs in one second: two folders
     _hydra_app(run_match, "match", refuse_foreign_folder)()
     _exit_after_sweep()
 

@@ -180,19 +180,21 @@ def _hydra_value(argument: str):
 MAX_FOLDER_SUFFIX = 1000
 
 
-def claimed_run_folder(config_name: str, argv: list[str]) -> list[str]:
+def claimed_run_folder(config_name: str, argv: list[str], folder: str | None = None) -> list[str]:
     """``argv`` with ``hydra.run.dir`` set to a fresh folder made for this run, when none was given.
 
     The default run folder is named by the second the run started, so two runs started in the
     same second (a script launching matches in parallel) chose the same folder and one was
     refused. The folder is made here (an atomic ``mkdir``); when it exists, ``_2``, ``_3``, ...
     are tried. Sweeps, runs with Hydra flags and a folder that cannot be made are left as they
-    are (Hydra, or the lock, reports them).
+    are (Hydra, or the lock, reports them). ``folder``: the default folder as resolved already
+    (what :func:`exit_on_bad_command_line` returns); else the configuration is composed for it.
     """
     if any(arg.startswith("-") for arg in argv) or any(_key(arg) == "hydra.run.dir" for arg in argv):
         return list(argv)
-    cfg, problem = compose_problem(config_name, list(argv))
-    folder = None if problem else _run_folder(cfg)
+    if folder is None:
+        cfg, problem = compose_problem(config_name, list(argv))
+        folder = None if problem else _run_folder(cfg)
     if not folder:
         return list(argv)
     for number in range(1, MAX_FOLDER_SUFFIX + 1):
@@ -208,13 +210,14 @@ def claimed_run_folder(config_name: str, argv: list[str]) -> list[str]:
     return list(argv)
 
 
-def exit_on_bad_command_line(config_name: str, argv: list[str]) -> None:
+def exit_on_bad_command_line(config_name: str, argv: list[str]) -> str | None:
     """Exit 2 for an unknown option or value syntax, 6 for an unusable run folder (single runs).
 
-    Runs with Hydra flags (``-m``, ``--help``, ``--cfg``, ...) are left to Hydra.
+    Runs with Hydra flags (``-m``, ``--help``, ``--cfg``, ...) are left to Hydra. Returns the
+    run folder checked (None when not resolved).
     """
     if any(arg.startswith("-") for arg in argv):
-        return
+        return None
     problem = unknown_option_problem(config_name, list(argv))
     cfg = None
     if problem is None:
@@ -227,3 +230,4 @@ def exit_on_bad_command_line(config_name: str, argv: list[str]) -> None:
     if reason:
         print(f"spidermatch-{config_name}: cannot write the run folder {folder}: {reason}", file=sys.stderr)
         sys.exit(EXIT_OUTPUT_ERROR)
+    return folder

@@ -37,16 +37,26 @@ def record_job_code(output_dir: Path, code: int) -> None:
             logger.warning("%s: the job's exit code cannot be recorded (%s)", folder, error.strerror)
 
 
+def recorded_code(job_dir: Path) -> int | None:
+    """The exit code a sweep job recorded in its ``.hydra/`` folder (None: not recorded)."""
+    try:
+        return int((job_dir / ".hydra" / CODE_FILE).read_text().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def natural_key(relative: Path) -> list:
+    """Sort key that puts sweep job folders 2 before 10."""
+    return [int(part) if part.isdigit() else part for part in relative.parts]
+
+
 def job_codes(sweep_dir: Path) -> list[tuple[str, int]]:
     """(job folder relative to ``sweep_dir``, exit code) of every job that held its folder, in name order."""
-    jobs = []
-    for marker in sorted(Path(sweep_dir).rglob(".hydra")):
-        try:
-            code = int((marker / CODE_FILE).read_text().strip())
-        except (OSError, ValueError):
-            code = UNRECORDED
-        jobs.append((str(marker.parent.relative_to(sweep_dir)), code))
-    return sorted(jobs, key=lambda job: [int(part) if part.isdigit() else part for part in job[0].split("/")])
+    jobs = sorted(
+        (marker.parent.relative_to(sweep_dir) for marker in Path(sweep_dir).rglob(".hydra")), key=natural_key
+    )
+    codes = (recorded_code(Path(sweep_dir) / job) for job in jobs)
+    return [(str(job), UNRECORDED if code is None else code) for job, code in zip(jobs, codes)]
 
 
 def report_sweep(sweep_dir: Path) -> int:

@@ -306,11 +306,12 @@ def _check_precision(verts: np.ndarray, faces: np.ndarray, name: str) -> None:
     """
     if verts.dtype != np.float64 or not np.array_equal(verts.astype(np.float32), verts):
         return
-    step = np.spacing(np.abs(verts).max(axis=0).astype(np.float32)).astype(np.float64)  # (3,)
+    reach = np.abs(verts).max(axis=0)  # (3,)
+    step = np.spacing(reach.astype(np.float32)).astype(np.float64)
     edges = verts[faces[:, [1, 2, 0]]] - verts[faces]
     mean_edge = float(np.linalg.norm(edges, axis=2).mean())
     if mean_edge > 0 and step.max() > PRECISION_EDGE_SHARE * mean_edge:
-        far = float(np.abs(verts).max())
+        far = float(reach.max())
         raise MeshError(
             f"{name}: coordinates in single precision (float32) reach {far:.3g} from the origin, where "
             f"float32 steps by {step.max():.3g}: {step.max() / mean_edge:.1f} times the mean edge length "

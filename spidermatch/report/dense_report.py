@@ -100,13 +100,13 @@ def write_dense_outputs(
         if rows is None
         else (dense.vertex[rows], dense.face[rows], dense.bary[rows])
     )
-    if vertex_ids is None:
-        _write_vertex_pairs(csv_path, image_vertex, "source_vertex,target_vertex")
-    else:  # a row per source vertex (of the file, where it was welded): -1 outside the piece
-        n_rows = source_weld.n_file if source_weld is not None else n_source
-        every = np.full(n_rows, -1, dtype=np.int64)
+    every = image_vertex
+    if (
+        vertex_ids is not None
+    ):  # a row per source vertex (of the file, where it was welded): -1 outside the piece
+        every = np.full(source_weld.n_file if source_weld is not None else n_source, -1, dtype=np.int64)
         every[vertex_ids] = image_vertex
-        _write_vertex_pairs(csv_path, every, "source_vertex,target_vertex")
+    _write_vertex_pairs(csv_path, every, "source_vertex,target_vertex")
     extra = {} if dense.covered is None else {"target_covered": dense.covered}
     if vertex_ids is not None:
         extra["source_vertex"] = vertex_ids
@@ -176,10 +176,9 @@ def on_file_target(dense: DenseMap, weld: Weld) -> DenseMap:
     return DenseMap(weld.file_ids(dense.vertex), dense.face, dense.bary, dense.method, covered, inverse)
 
 
-def _write_vertex_pairs(
-    path: Path, images: np.ndarray, header: str, sources: np.ndarray | None = None
-) -> None:
-    rows = np.stack([np.arange(images.size) if sources is None else sources, images], axis=1)
+def _write_vertex_pairs(path: Path, images: np.ndarray, header: str) -> None:
+    """A ``header`` row, then ``i,images[i]`` for every i."""
+    rows = np.stack([np.arange(images.size), images], axis=1)
     with atomic_path(path) as tmp:
         np.savetxt(tmp, rows, fmt="%d", delimiter=",", header=header, comments="")
 
