@@ -300,7 +300,6 @@ def _unchecked_mesh(shape, role: str) -> Mesh | None:
     if isinstance(shape, Mesh):
         return shape
     try:
-        shape = _one_trimesh(shape, role)
         if isinstance(shape, (str, os.PathLike)):
             from spidermatch.geometry.io import load_mesh
 
@@ -653,6 +652,7 @@ def mesh_of(shape, role: str, repair: bool) -> tuple[Mesh, Repair | None, Weld |
     without it, a mesh that the repair would mend is refused with what it would match.
     ``role`` ("source" or "target") names an in-memory mesh in messages.
     """
+    shape = _one_trimesh(shape, role)  # a Scene joined once, for both readings below
     unchecked = _unchecked_mesh(shape, role)
     weld = None if unchecked is None else welded(unchecked)
     # a file is read once: its unchecked Mesh is validated as load_mesh would
