@@ -404,6 +404,24 @@ def log_to_files(logger: logging.Logger, level: int, message: str) -> None:
         handler.handle(record)
 
 
+def detach_file_logs(folder: Path) -> None:
+    """Close the root logger's file handlers that write into ``folder`` (Hydra's run log there).
+
+    For a run refused before it held its folder: the log file there belongs to the run that
+    holds it (or to the user), so the refusal goes to the console only. A log file this process
+    created empty is removed with it.
+    """
+    for handler in _file_handlers():
+        path = Path(handler.baseFilename)
+        if path.parent != Path(folder).absolute():
+            continue
+        logging.getLogger().removeHandler(handler)
+        handler.close()
+        with contextlib.suppress(OSError):
+            if path.stat().st_size == 0:
+                path.unlink()
+
+
 def _file_handlers() -> list[logging.FileHandler]:
     """The root logger's handlers that write a file (Hydra's run log)."""
     return [handler for handler in logging.getLogger().handlers if isinstance(handler, logging.FileHandler)]

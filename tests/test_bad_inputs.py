@@ -335,7 +335,7 @@ def test_the_users_own_files_are_left_alone_without_a_result_json_too(tmp_path):
     assert run.returncode == shutdown.EXIT_OUTPUT_ERROR, run.stderr[-2000:]
     assert "holds texture.png, which no earlier spidermatch run wrote" in run.stdout + run.stderr
     assert (folder / "texture.png").read_text() == "my picture"
-    assert {path.name for path in folder.iterdir()} <= {"texture.png", "main.log"}  # Hydra's log aside
+    assert {path.name for path in folder.iterdir()} == {"texture.png"}  # Hydra's empty log removed too
 
 
 def test_a_run_without_a_result_json_is_known_by_its_lock_file(tmp_path):
@@ -362,9 +362,11 @@ def test_every_file_a_run_writes_is_among_the_outputs_a_next_run_removes(tmp_pat
 
 
 def test_a_folder_held_by_a_live_run_is_refused(tmp_path):
+    """Refused with exit 2; the live run's log (Hydra's ``main.log`` there) does not get the refusal."""
     folder = tmp_path / "run"
     command = [sys.executable, "-c", "from spidermatch.cli.main import match_main; match_main()"]
     with shutdown.folder_lock(folder):
+        (folder / "main.log").write_text("the live run's log\n")
         run = subprocess.run(
             [*command, *SMALL, f"hydra.run.dir={folder}"],
             capture_output=True,
@@ -375,6 +377,7 @@ def test_a_folder_held_by_a_live_run_is_refused(tmp_path):
     assert run.returncode == 2, run.stderr[-2000:]
     assert "another spidermatch run (process" in run.stdout + run.stderr
     assert not (folder / "result.json").exists() and not (folder / ".hydra").exists()
+    assert (folder / "main.log").read_text() == "the live run's log\n"
 
 
 def test_a_free_folder_gets_its_config_saved(tmp_path):
