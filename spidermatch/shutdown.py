@@ -404,12 +404,12 @@ def log_to_files(logger: logging.Logger, level: int, message: str) -> None:
         handler.handle(record)
 
 
-def detach_file_logs(folder: Path) -> None:
+def detach_file_logs(folder: Path, remove_empty: bool) -> None:
     """Close the root logger's file handlers that write into ``folder`` (Hydra's run log there).
 
     For a run refused before it held its folder: the log file there belongs to the run that
-    holds it (or to the user), so the refusal goes to the console only. A log file this process
-    created empty is removed with it.
+    holds it (or to the user), so the refusal goes to the console only. ``remove_empty``: an
+    empty log file is removed too (not in a folder a live run holds: its log may be empty yet).
     """
     for handler in _file_handlers():
         path = Path(handler.baseFilename)
@@ -418,7 +418,7 @@ def detach_file_logs(folder: Path) -> None:
         logging.getLogger().removeHandler(handler)
         handler.close()
         with contextlib.suppress(OSError):
-            if path.stat().st_size == 0:
+            if remove_empty and path.stat().st_size == 0:
                 path.unlink()
 
 

@@ -361,12 +361,13 @@ def test_every_file_a_run_writes_is_among_the_outputs_a_next_run_removes(tmp_pat
     assert written - {"result.json"} <= set(RUN_OUTPUTS)
 
 
-def test_a_folder_held_by_a_live_run_is_refused(tmp_path):
-    """Refused with exit 2; the live run's log (Hydra's ``main.log`` there) does not get the refusal."""
+@pytest.mark.parametrize("live_log", ["the live run's log\n", ""])
+def test_a_folder_held_by_a_live_run_is_refused(tmp_path, live_log):
+    """Refused with exit 2; the live run's log (Hydra's ``main.log`` there, empty or not) is left as it was."""
     folder = tmp_path / "run"
     command = [sys.executable, "-c", "from spidermatch.cli.main import match_main; match_main()"]
     with shutdown.folder_lock(folder):
-        (folder / "main.log").write_text("the live run's log\n")
+        (folder / "main.log").write_text(live_log)
         run = subprocess.run(
             [*command, *SMALL, f"hydra.run.dir={folder}"],
             capture_output=True,
@@ -377,7 +378,7 @@ def test_a_folder_held_by_a_live_run_is_refused(tmp_path):
     assert run.returncode == 2, run.stderr[-2000:]
     assert "another spidermatch run (process" in run.stdout + run.stderr
     assert not (folder / "result.json").exists() and not (folder / ".hydra").exists()
-    assert (folder / "main.log").read_text() == "the live run's log\n"
+    assert (folder / "main.log").read_text() == live_log
 
 
 def test_a_free_folder_gets_its_config_saved(tmp_path):

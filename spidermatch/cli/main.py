@@ -70,12 +70,12 @@ def _held_run(run, cfg, hydra_cfg, output_dir: Path, check_folder=None) -> int:
             _save_run_config(cfg, hydra_cfg, output_dir)
             return run(cfg, output_dir)
     except shutdown.FolderInUse as error:
-        shutdown.detach_file_logs(output_dir)  # its log is the live run's
+        shutdown.detach_file_logs(output_dir, remove_empty=False)  # its log is the live run's
         logger.error("%s", error)
         return EXIT_BAD_INPUT
     except shutdown.OutputError as error:
         if not (output_dir / shutdown.LOCK_NAME).exists():  # refused before holding it
-            shutdown.detach_file_logs(output_dir)
+            shutdown.detach_file_logs(output_dir, remove_empty=True)
         logger.error("%s; nothing was run", error)
         return shutdown.EXIT_OUTPUT_ERROR
 
