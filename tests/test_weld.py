@@ -225,3 +225,42 @@ def test_a_vertex_an_exporter_left_unused_at_a_split_seam_joins_its_copies(creat
     stray = Mesh(np.vstack([split.verts, [[9.0, 9.0, 9.0]]]), faces, "stray.obj")
     with pytest.raises(MeshError, match="not used by any face"):
         mesh_of(stray, "source", repair=False)
+
+
+def _split_in_two(mesh: Mesh, shift: float) -> tuple[Mesh, np.ndarray]:
+    """``mesh`` cut into two parts (upper and lower faces), each with its own vertices, as a scene
+    exporter stores them: the lower part placed by a float32 node transform moving it ``shift`` back.
+
+    Returns the joined mesh and the original vertex of each of its vertices.
+    """
+    upper = mesh.verts[mesh.faces].mean(axis=1)[:, 1] > np.median(mesh.verts[:, 1])
+    verts, faces, original, start = [], [], [], 0
+    for part, moved in ((upper, 0.0), (~upper, shift)):
+        used, local = np.unique(mesh.faces[part], return_inverse=True)
+        stored = (mesh.verts[used] + [0.0, 0.0, moved]).astype(np.float32)  # in the file
+        placed = (stored - np.float32([0.0, 0.0, moved])).astype(np.float64)  # after its transform
+        verts.append(placed)
+        faces.append(local.reshape(-1, 3) + start)
+        original.append(used)
+        start += used.size
+    return Mesh(np.vstack(verts), np.vstack(faces), "scene.glb"), np.concatenate(original)
+
+
+def test_a_scene_whose_parts_were_placed_in_single_precision_is_welded_along_its_seam(creature):
+    """Two parts of one body stored with their own node transforms: the seam's two sides lie a
+    float32 rounding error apart, not at the same position. Refused as two components before."""
+    scene, original = _split_in_two(creature, shift=5.0)
+    assert len(np.unique(scene.verts, axis=0)) > creature.n_verts  # the seam does not repeat exactly
+    mesh, repaired, weld = mesh_of(scene, "source", repair=False)
+    assert repaired is None and mesh.n_verts == creature.n_verts
+    assert 0 < weld.gap < 1e-5 and "lie within" in weld.note
+    assert len(np.unique(np.stack([original, weld.to_welded], axis=1), axis=0)) == creature.n_verts  # a bijection
+
+
+def test_boundaries_further_apart_than_a_rounding_error_stay_open(creature):
+    """The same two parts a hundredth of an edge apart are two pieces, not welded (a gap of the shape's own)."""
+    scene, _ = _split_in_two(creature, shift=0.0)
+    lower = np.arange(scene.n_verts) >= np.unique(scene.faces[: scene.n_faces // 2]).size
+    apart = scene.verts.copy()
+    apart[lower, 2] += 0.01 * mean_edge_length(creature)
+    assert welded(Mesh(apart, scene.faces, "apart.obj")) is None

@@ -9,10 +9,12 @@ appear in the file), and every output is told back in the file's own vertices: e
 vertex gets the image of the vertex it was welded into, and a target vertex is named by its
 first occurrence in the file. The faces keep their number and order.
 
-Only exact repeats are welded (an STL stores the shared corner of two facets twice with the
-same bits), and only where two faces meet on an edge by position (see
-:func:`_welded_numbering`): two vertices a scanner put a rounding error apart stay two vertices,
-and so do two coincident vertices of a valid surface. A vertex no face uses joins a used one at its
+Repeats are welded where two faces meet on an edge by position (see :func:`_welded_numbering`):
+an STL stores the shared corner of two facets twice with the same bits. Vertices on a boundary
+count as one position when they lie closer than a thousandth of the median edge
+(:data:`NEAR_REPEAT_SHARE`): an exporter that places each part of a scene by its own node
+transform, in single precision, leaves the two sides of a seam a rounding error apart (2e-7 m
+on a body 1.7 m tall). Two coincident vertices of a valid surface stay two vertices. A vertex no face uses joins a used one at its
 position (the original of a vertex split along a seam, left unused by its exporter). A welded
 mesh is used only where it is valid or the mesh as given is not (:func:`spidermatch.api.mesh_of`).
 """
@@ -24,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from spidermatch.geometry.mesh import Mesh
 
@@ -41,11 +44,14 @@ class Weld:
         Welded vertex of each vertex of the file.
     to_file : np.ndarray, shape (V,), int64
         First vertex of the file at each welded vertex's position.
+    gap : float
+        Largest distance between two boundary vertices taken as one position (0: exact repeats only).
     """
 
     mesh: Mesh
     to_welded: np.ndarray
     to_file: np.ndarray
+    gap: float = 0.0
 
     @property
     def n_file(self) -> int:
@@ -55,7 +61,7 @@ class Weld:
     @property
     def note(self) -> str:
         """What was welded, for the log and the report's warnings."""
-        return weld_note(self.mesh.name, self.n_file, self.mesh.n_verts)
+        return weld_note(self.mesh.name, self.n_file, self.mesh.n_verts, self.gap)
 
     def file_values(self, values: np.ndarray) -> np.ndarray:
         """Per-vertex ``values`` (V, ...) of the welded mesh, one row per file vertex (V_file, ...)."""
@@ -103,14 +109,47 @@ def welded(mesh: Mesh) -> Weld | None:
         return None
     if faces.min() < 0 or faces.max() >= verts.shape[0]:
         return None
-    unique, position = np.unique(verts, axis=0, return_inverse=True)
-    if len(unique) == len(verts):
+    position = np.unique(verts, axis=0, return_inverse=True)[1].reshape(-1)
+    position, gap = _with_near_repeats(verts, faces, position)
+    if position.max() + 1 == len(verts):
         return None  # no position repeats: nothing to weld
-    to_welded, to_file = _welded_numbering(verts, faces, position.reshape(-1))
+    to_welded, to_file = _welded_numbering(verts, faces, position)
     if to_file.size == verts.shape[0]:
         return None
-    note = weld_note(mesh.name, to_welded.size, to_file.size)
-    return Weld(Mesh(verts[to_file], to_welded[faces], mesh.name, (note, *mesh.notes)), to_welded, to_file)
+    note = weld_note(mesh.name, to_welded.size, to_file.size, gap)
+    welded_mesh = Mesh(verts[to_file], to_welded[faces], mesh.name, (note, *mesh.notes))
+    return Weld(welded_mesh, to_welded, to_file, gap)
+
+
+NEAR_REPEAT_SHARE = 1e-3
+"""Boundary vertices closer than this share of the median edge length are one position."""
+
+
+def _with_near_repeats(verts: np.ndarray, faces: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, float]:
+    """``position`` (V_file,) with boundary positions closer than :data:`NEAR_REPEAT_SHARE` joined.
+
+    Boundary positions are the ends of edges (by position) that one face alone has: a seam an
+    exporter split, or a rounding error left open. Returns the new numbering (0.., in the order
+    of the old one's first members) and the largest distance joined (0.0 if none).
+    """
+    n = int(position.max()) + 1
+    tail, head = position[faces].reshape(-1), position[faces[:, [1, 2, 0]]].reshape(-1)
+    keys, count = np.unique(np.minimum(tail, head) * n + np.maximum(tail, head), return_counts=True)
+    rim = np.unique(np.stack([keys[count == 1] // n, keys[count == 1] % n]))
+    if rim.size < 2:
+        return position, 0.0
+    first = np.zeros(position.max() + 1, dtype=np.int64)
+    first[position[::-1]] = np.arange(position.size)[::-1]  # a file vertex at each position
+    points = verts[first[rim]]
+    lengths = np.linalg.norm(verts[faces[:, 1]] - verts[faces[:, 0]], axis=1)  # one edge a face
+    reach = NEAR_REPEAT_SHARE * float(np.median(lengths))
+    pairs = cKDTree(points).query_pairs(reach, output_type="ndarray")
+    if len(pairs) == 0:
+        return position, 0.0
+    gap = float(np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1).max())
+    links = sp.coo_matrix((np.ones(len(pairs)), (rim[pairs[:, 0]], rim[pairs[:, 1]])), shape=(n, n))
+    joined = connected_components(links, directed=False)[1]
+    return np.unique(joined[position], return_inverse=True)[1].reshape(-1), gap
 
 
 def _welded_numbering(
@@ -270,10 +309,11 @@ def soup_refusal(error: Exception, weld: Weld) -> str:
     )
 
 
-def weld_note(name: str, n_file: int, n_welded: int) -> str:
-    """The warning that ``name``'s ``n_file`` vertices were matched as ``n_welded``."""
+def weld_note(name: str, n_file: int, n_welded: int, gap: float = 0.0) -> str:
+    """The warning that ``name``'s ``n_file`` vertices were matched as ``n_welded`` (``gap``: see Weld)."""
+    near = f" or lie within {gap:.2g} of another along a seam" if gap > 0 else ""
     return (
-        f"{name}: {n_file - n_welded} of its {n_file} vertices repeat the position of another "
+        f"{name}: {n_file - n_welded} of its {n_file} vertices repeat the position of another{near} "
         f"(a triangle soup, as STL stores it, or seams split by an exporter); matched with those "
         f"welded, {n_welded} vertices; every output names the file's own vertices"
     )
