@@ -787,6 +787,21 @@ def test_quality_verdict_flags_a_mirror_image_and_a_collapse():
     assert unproven["verdict"] == "suspect" and "gap" in unproven["reasons"][0]
 
 
+def test_a_coarse_maps_tears_count_jumps_not_its_edges_length():
+    """At a few hundred faces every edge is longer than the dense maps' tear distance: the certified
+    map's ``tears`` read 0.85-0.98 on every map, the identity's too. Now jumps of over two edges."""
+    from spidermatch.eval.quality import assess
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)  # 162 vertices, as a map at 300 faces
+    coarse = Mesh(sphere.vertices * [1.0, 0.8, 0.6], sphere.faces, "coarse")
+    identity = np.arange(coarse.n_verts)
+    assert assess(coarse, coarse, identity, 1e-4)["tears"] == 0.0
+    jumped = identity.copy()
+    jumped[0] = int(np.argmax(np.linalg.norm(coarse.verts - coarse.verts[0], axis=1)))  # to the far side
+    degree = np.count_nonzero((coarse.edges == 0).any(axis=1))
+    assert assess(coarse, coarse, jumped, 1e-4)["tears"] == round(degree / len(coarse.edges), 4)
+
+
 def test_a_mirror_image_needs_the_dense_map_to_agree():
     from spidermatch.eval.quality import assess, dense_mirror, with_dense_figures
     from spidermatch.geometry.surface import vertex_points

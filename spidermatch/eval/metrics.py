@@ -91,6 +91,7 @@ def consistency(
     face: np.ndarray | None = None,
     bary=None,
     faces: np.ndarray | None = None,
+    tear_threshold: float | None = None,
 ) -> Consistency:
     """Tears and flips of the map sending source vertex i to ``points[i]`` on ``target``.
 
@@ -106,6 +107,9 @@ def consistency(
     faces : np.ndarray, shape (S,), optional
         Source faces to score (e.g. :func:`sampled_faces`); tears then count their edges.
         Default: all.
+    tear_threshold : float, optional
+        Distance on the target beyond which an edge's images are torn apart; default
+        ``TEAR_THRESHOLD`` sqrt(target area).
 
     """
     points = np.asarray(points, dtype=np.float64)
@@ -115,7 +119,7 @@ def consistency(
         face, bary = closest_surface_points(target, points)
     if faces is not None:
         source = Mesh(source.verts, source.faces[faces], source.name)  # unused vertices are never read
-    torn = torn_edges(source, target, points, face, bary)
+    torn = torn_edges(source, target, points, face, bary, tear_threshold)
     flipped, degenerate = flipped_faces(source, target, points, face, bary)
     flips = flipped | degenerate
     return Consistency(
@@ -124,21 +128,34 @@ def consistency(
 
 
 def vertex_map_consistency(
-    source: Mesh, target: Mesh, src_to_tgt: np.ndarray, faces: np.ndarray | None = None
+    source: Mesh,
+    target: Mesh,
+    src_to_tgt: np.ndarray,
+    faces: np.ndarray | None = None,
+    tear_threshold: float | None = None,
 ) -> Consistency:
     """:func:`consistency` of a vertex map (V_X,), e.g. the features' nearest neighbours."""
     from spidermatch.geometry.surface import vertex_points
 
     vertices = np.asarray(src_to_tgt, dtype=np.int64)
     face, bary = vertex_points(target, vertices)
-    return consistency(source, target, target.verts[vertices], face, bary, faces)
+    return consistency(source, target, target.verts[vertices], face, bary, faces, tear_threshold)
 
 
 def torn_edges(
-    source: Mesh, target: Mesh, points: np.ndarray, face: np.ndarray, bary: np.ndarray
+    source: Mesh,
+    target: Mesh,
+    points: np.ndarray,
+    face: np.ndarray,
+    bary: np.ndarray,
+    threshold: float | None = None,
 ) -> np.ndarray:
-    """Whether each source edge (E,) is torn (see the module docstring), bool (E,)."""
-    threshold = TEAR_THRESHOLD * np.sqrt(target.area)
+    """Whether each source edge (E,) is torn (see the module docstring), bool (E,).
+
+    ``threshold``: the tear distance on the target (default ``TEAR_THRESHOLD`` sqrt(area)).
+    """
+    if threshold is None:
+        threshold = TEAR_THRESHOLD * np.sqrt(target.area)
     edges = source.edges
     euclidean = np.linalg.norm(points[edges[:, 0]] - points[edges[:, 1]], axis=1)
     torn = euclidean > threshold

@@ -47,7 +47,7 @@ import math
 
 import numpy as np
 
-from spidermatch.eval.metrics import flipped_faces, vertex_map_consistency
+from spidermatch.eval.metrics import TEAR_THRESHOLD, flipped_faces, vertex_map_consistency
 from spidermatch.geometry.geodesics import GeodesicDistances
 from spidermatch.geometry.mesh import Mesh, topology
 from spidermatch.geometry.surface import surface_positions
@@ -106,7 +106,9 @@ def assess(low_source: Mesh, low_target: Mesh, low_map: np.ndarray, gap: float |
 
     """
     low_map = np.asarray(low_map, dtype=np.int64)
-    consistency = vertex_map_consistency(low_source, low_target, low_map)
+    consistency = vertex_map_consistency(
+        low_source, low_target, low_map, tear_threshold=coarse_tear(low_target)
+    )
     proper = 1.0 - consistency.degenerate
     figures = {
         "mirror": round(consistency.flipped / proper, 4) if proper > 0 else 1.0,
@@ -119,6 +121,21 @@ def assess(low_source: Mesh, low_target: Mesh, low_map: np.ndarray, gap: float |
         "distortion_judged": topology(low_target).open_boundaries == 0,  # see the module docstring
     }
     return {**judge(figures), **figures}
+
+
+COARSE_TEAR_EDGES = 2.0
+"""A certified map's edge is torn when its images lie more than this many target edges apart."""
+
+
+def coarse_tear(target: Mesh) -> float:
+    """Tear distance for a map between decimated meshes: :data:`COARSE_TEAR_EDGES` median edges.
+
+    At a few hundred faces an edge is longer than the dense maps' tear distance (0.05
+    sqrt(area)), so with that distance every edge tears, the identity's too (0.98 on a mesh
+    matched to itself at 300 faces). Never below the dense maps' distance.
+    """
+    lengths = np.linalg.norm(target.verts[target.edges[:, 0]] - target.verts[target.edges[:, 1]], axis=1)
+    return max(TEAR_THRESHOLD * float(np.sqrt(target.area)), COARSE_TEAR_EDGES * float(np.median(lengths)))
 
 
 def distortion(source: Mesh, target: Mesh, vertex_map: np.ndarray, seed: int = 0) -> float:
