@@ -14,9 +14,10 @@ an STL stores the shared corner of two facets twice with the same bits. Vertices
 count as one position when they lie closer than a thousandth of the median edge
 (:data:`NEAR_REPEAT_SHARE`): an exporter that places each part of a scene by its own node
 transform, in single precision, leaves the two sides of a seam a rounding error apart (2e-7 m
-on a body 1.7 m tall). Two coincident vertices of a valid surface stay two vertices. A vertex no face uses joins a used one at its
-position (the original of a vertex split along a seam, left unused by its exporter). A welded
-mesh is used only where it is valid or the mesh as given is not (:func:`spidermatch.api.mesh_of`).
+on a body 1.7 m tall). Two coincident vertices of a valid surface stay two vertices. A vertex
+no face uses joins a used one at its position (the original of a vertex split along a seam,
+left unused by its exporter). A welded mesh is used only where it is valid or the mesh as given
+is not (:func:`spidermatch.api.mesh_of`).
 """
 
 from __future__ import annotations
@@ -125,7 +126,9 @@ NEAR_REPEAT_SHARE = 1e-3
 """Boundary vertices closer than this share of the median edge length are one position."""
 
 
-def _with_near_repeats(verts: np.ndarray, faces: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, float]:
+def _with_near_repeats(
+    verts: np.ndarray, faces: np.ndarray, position: np.ndarray
+) -> tuple[np.ndarray, float]:
     """``position`` (V_file,) with boundary positions closer than :data:`NEAR_REPEAT_SHARE` joined.
 
     Boundary positions are the ends of edges (by position) that one face alone has: a seam an
