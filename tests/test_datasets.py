@@ -4,7 +4,8 @@ import pytest
 from spidermatch.data.datasets import DatasetError, ShapeFolder, SyntheticShapes, open_dataset, write_dataset
 from spidermatch.data.synthetic import creature_pair_ground_truth, make_creature
 from spidermatch.eval.errors import cumulative_curve, dense_map_errors, sparse_map_errors
-from spidermatch.geometry.io import save_mesh
+from spidermatch.geometry.io import save_mesh, write_vts
+from spidermatch.geometry.mesh import Mesh, MeshError
 from spidermatch.geometry.remesh import decimate, nearest_vertices, surface_nearest_vertices
 
 
@@ -128,3 +129,66 @@ def test_a_dataset_folder_welds_an_stl_soup_and_tells_its_ground_truth_on_the_we
     shape = ShapeFolder(tmp_path).load("scan")
     assert shape.weld is not None and shape.mesh.n_verts == creature.n_verts
     np.testing.assert_array_equal(shape.mesh.verts[shape.corr], creature.verts[truth].astype(np.float32))
+
+
+def _raw_scan_folder(tmp_path):
+    """A folder of three shapes: one clean, one with floating debris, one with stray vertices (with truth)."""
+    import trimesh
+
+    creature = make_creature(n_verts=500, seed=2).mesh
+    debris = trimesh.creation.icosphere(subdivisions=1, radius=0.05)
+    with_debris = (
+        np.vstack([debris.vertices + creature.verts.max(axis=0) + 0.5, creature.verts]),  # debris first
+        np.vstack([debris.faces, creature.faces + len(debris.vertices)]),
+    )
+    stray = (np.vstack([creature.verts, creature.verts[:3] + 0.01]), creature.faces)
+    truth = np.arange(0, creature.n_verts, 9)
+    for name, (verts, faces), shift in (
+        ("a_clean", (creature.verts, creature.faces), 0),
+        ("b_debris", with_debris, len(debris.vertices)),
+        ("c_stray", stray, 0),
+    ):
+        save_mesh(Mesh(verts, faces), tmp_path / "off" / f"{name}.off")
+        write_vts(truth + shift, tmp_path / "corres" / f"{name}.vts")
+    return creature, truth
+
+
+def test_a_folder_of_raw_scans_names_every_bad_shape_with_what_the_repair_would_use(tmp_path):
+    _raw_scan_folder(tmp_path)
+    folder = ShapeFolder(tmp_path, repair_option="data.repair=true")
+    problems = folder.unusable(folder.names)
+    assert len(problems) == 2 and "b_debris.off" in problems[0] and "c_stray.off" in problems[1]
+    assert all("data.repair=true would use its largest clean piece" in problem for problem in problems)
+    with pytest.raises(MeshError, match="2 connected components"):
+        ShapeFolder(tmp_path).load("b_debris")  # no option named where none can be set
+
+
+def test_a_repaired_shape_keeps_its_ground_truth_on_the_piece(tmp_path):
+    creature, truth = _raw_scan_folder(tmp_path)
+    folder = ShapeFolder(tmp_path, repair=True, repair_option="data.repair=true")
+    assert folder.unusable(folder.names) == []
+    for name in folder.names:
+        shape = folder.load(name)
+        assert shape.mesh.n_verts == creature.n_verts
+        np.testing.assert_allclose(shape.mesh.verts[shape.corr], creature.verts[truth], atol=1e-8)
+
+
+def test_training_refuses_a_folder_naming_all_its_bad_shapes_before_preparing_any(tmp_path):
+    from train.loop import refuse_unusable_shapes
+
+    _raw_scan_folder(tmp_path)
+    folder = open_dataset(tmp_path, repair_option="data.repair=true")
+    listing = r"2 of 3 shapes cannot be used:\n  .*b_debris.off.*\n  .*c_stray.off"
+    with pytest.raises(DatasetError, match=listing):
+        refuse_unusable_shapes(folder, folder.names)
+    refuse_unusable_shapes(open_dataset(tmp_path, repair=True), folder.names)  # all usable
+
+
+def test_a_reference_point_the_repair_left_out_moves_to_the_nearest_vertex_kept():
+    from spidermatch.data.datasets import kept_reference_vertices
+
+    creature = make_creature(n_verts=500, seed=2).mesh
+    stray = Mesh(np.vstack([creature.verts, creature.verts[7] + 1e-3]), creature.faces, "stray.off")
+    kept = np.arange(creature.n_verts)  # the repair's piece leaves the stray vertex out
+    moved = kept_reference_vertices(stray, kept, np.array([3, creature.n_verts, 11]))
+    np.testing.assert_array_equal(moved, [3, 7, 11])

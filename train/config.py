@@ -58,6 +58,11 @@ class DataConfig:
         truth; None uses all).
     use_cache : bool
         Use the on-disk operator cache.
+    repair : bool
+        A shape of ``root`` that fails the checks only as a raw scan does (debris, bow-ties,
+        stray vertices, slivers, fins) is trained on as its largest clean piece, as
+        ``spidermatch-match repair=true`` matches it; false refuses it (every such shape is
+        named before the data preparation).
     orientation_turns : int
         For networks that read coordinates (``xyz``, ``wks_xyz``): validation and inference
         present each shape in this many turns about the vertical axis and keep the one whose
@@ -95,6 +100,7 @@ class DataConfig:
     synthetic_verts: int = 2000
     val_points: int | None = 500
     use_cache: bool = True
+    repair: bool = False
     orientation_turns: int = 0
     up_axis: str = "y"
     partial_copies: int = 0

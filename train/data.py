@@ -101,7 +101,12 @@ class ValShape:
 def open_shapes(config: DataConfig) -> ShapeFolder | SyntheticShapes:
     """The dataset named by ``config.root`` (generated creatures when it is None)."""
     return open_dataset(
-        config.root, n_shapes=config.synthetic_shapes, n_verts=config.synthetic_verts, seed=SYNTHETIC_SEED
+        config.root,
+        config.repair,
+        "data.repair=true",
+        n_shapes=config.synthetic_shapes,
+        n_verts=config.synthetic_verts,
+        seed=SYNTHETIC_SEED,
     )
 
 

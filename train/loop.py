@@ -42,7 +42,7 @@ from features.orientation import (
     turn_about_vertical,
 )
 from spidermatch import shutdown
-from spidermatch.data.datasets import DatasetError
+from spidermatch.data.datasets import DatasetError, ShapeFolder
 from spidermatch.versions import software_versions
 from train.config import TrainConfig, incompatibilities
 from train.data import (
@@ -535,6 +535,28 @@ def _rebase_best(state: TrainingState, criterion: str) -> None:
         state.best_val = best
 
 
+UNUSABLE_LISTED = 10
+"""Unusable shapes named one by one in the refusal; the rest are counted."""
+
+
+def refuse_unusable_shapes(dataset, names: list[str]) -> None:
+    """DatasetError naming every shape of ``names`` that cannot be loaded, before any is prepared.
+
+    A folder of a user's scans may hold several bad files; naming them one run at a time
+    (a run stops at the first) would cost a preparation each.
+    """
+    if not isinstance(dataset, ShapeFolder):
+        return
+    problems = dataset.unusable(sorted(names))
+    if not problems:
+        return
+    listed = "\n  ".join(problems[:UNUSABLE_LISTED])
+    more = f"\n  ... and {len(problems) - UNUSABLE_LISTED} more" if len(problems) > UNUSABLE_LISTED else ""
+    raise DatasetError(
+        f"{dataset.root}: {len(problems)} of {len(names)} shapes cannot be used:\n  {listed}{more}"
+    )
+
+
 def prepare_data(config: TrainConfig) -> tuple[list[TrainShape], Validation]:
     """Open the dataset, split it, and precompute all training and validation inputs."""
     dataset = open_shapes(config.data)
@@ -542,6 +564,7 @@ def prepare_data(config: TrainConfig) -> tuple[list[TrainShape], Validation]:
         train_names, val_names = split_names(dataset.names, config.data)
     except ValueError as error:
         raise DatasetError(f"{config.data.root or 'synthetic shapes'}: {error}") from error
+    refuse_unusable_shapes(dataset, [*train_names, *val_names])
     logger.info(
         "%d training shapes (%s..%s), %d validation shapes (%s)",
         len(train_names),

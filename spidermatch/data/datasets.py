@@ -20,6 +20,7 @@ import numpy as np
 from spidermatch.data.synthetic import fibonacci_sphere, make_creature
 from spidermatch.geometry.io import MESH_SUFFIXES, load_mesh, read_vts, save_mesh, write_vts
 from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh
+from spidermatch.geometry.repair import Repair, largest_clean_piece
 from spidermatch.geometry.weld import Weld, soup_refusal, welded
 
 logger = logging.getLogger(__name__)
@@ -117,11 +118,22 @@ class ShapeFolder:
     ----------
     root : str or PathLike
         The dataset folder.
+    repair : bool
+        A shape that fails the checks only as a raw scan does (debris, bow-ties, stray vertices,
+        slivers) is loaded as its largest clean piece (:mod:`spidermatch.geometry.repair`), its
+        reference points moved to the nearest vertex kept; otherwise it is refused.
+    repair_option : str, optional
+        The option that sets ``repair`` (``"data.repair=true"``), named in a refusal that the
+        repair would mend.
 
     """
 
-    def __init__(self, root: str | os.PathLike) -> None:
+    def __init__(
+        self, root: str | os.PathLike, repair: bool = False, repair_option: str | None = None
+    ) -> None:
         self.root = Path(root)
+        self.repair, self.repair_option = repair, repair_option
+        self._repair_told: set[str] = set()  # shapes whose repair was logged (once each)
         if not self.root.is_dir():
             raise DatasetError(f"{self.root}: no such folder")
         mesh_dir = self.root / "off" if (self.root / "off").is_dir() else self.root
@@ -150,38 +162,91 @@ class ShapeFolder:
         """Load one shape and its ground truth (``corr`` is None if no .vts file exists)."""
         if name not in self._files:
             raise DatasetError(f"{self.root}: no shape named {name!r}")
-        mesh, weld = _mesh_or_welded(self._files[name])
+        readable, weld, refusal = _mesh_or_welded(self._files[name])
+        mesh, repaired = (readable, None) if refusal is None else self._repaired(readable, refusal)
         corr_file = self.corr_path(name)
         if not corr_file.is_file():
-            return Shape(name, mesh, None, weld)
-        if weld is None:
-            return Shape(name, mesh, read_vts(corr_file, mesh.n_verts))
-        return Shape(name, mesh, weld.to_welded[read_vts(corr_file, weld.n_file)], weld)
+            return Shape(name, mesh, None, None if repaired else weld)
+        corr = read_vts(corr_file, readable.n_verts if weld is None else weld.n_file)
+        if weld is not None:
+            corr = weld.to_welded[corr]
+        if repaired is None:
+            return Shape(name, mesh, corr, weld)
+        return Shape(name, mesh, kept_reference_vertices(readable, repaired.piece.to_original, corr))
+
+    def _repaired(self, readable: Mesh, refusal: MeshError) -> tuple[Mesh, Repair]:
+        """The largest clean piece of ``readable`` and its repair (with ``repair``), else ``refusal``."""
+        try:
+            repaired = largest_clean_piece(readable)
+        except MeshError:
+            raise refusal from None
+        if not self.repair:
+            if self.repair_option is None:
+                raise refusal
+            raise MeshError(f"{refusal}; {self.repair_option} would use {repaired.summary}")
+        logger.warning(
+            "%s: %s uses %s (as given: %s)", readable.name, self.repair_option, repaired.summary, refusal
+        )
+        return repaired.piece.mesh, repaired
+
+    def unusable(self, names: list[str]) -> list[str]:
+        """What is wrong with each of the shapes ``names`` that cannot be loaded (messages name the files)."""
+        problems = []
+        for name in names:
+            try:
+                self.load(name)
+            except (MeshError, DatasetError) as error:
+                problems.append(str(error))
+        return problems
 
     def pairs(self, pairs_file: str | os.PathLike | None = None) -> list[tuple[str, str]]:
         """Pairs from ``pairs_file`` or, without one, all ordered pairs."""
         return read_pairs_file(pairs_file, self.names) if pairs_file else all_ordered_pairs(self.names)
 
 
-def _mesh_or_welded(path: Path) -> tuple[Mesh, Weld | None]:
+def _mesh_or_welded(path: Path) -> tuple[Mesh, Weld | None, MeshError | None]:
     """The mesh of ``path``, or, if it is no valid surface but welded would be, it welded.
 
-    The file is read and welded once; a mesh valid neither way is refused with the error of
-    the mesh as given (and the soup hint :func:`spidermatch.geometry.io.load_mesh` gives).
+    The file is read and welded once. Returns the mesh, its weld (or None) and None; or, for a
+    mesh valid neither way, the mesh as read (welded, if it repeats vertices), its weld and the
+    refusal: the error of the mesh as given (with the soup hint
+    :func:`spidermatch.geometry.io.load_mesh` gives when it was welded).
     """
     given = load_mesh(path, validate=False)
     try:
-        return make_mesh(given.verts, given.faces, given.name, given.notes), None
+        return make_mesh(given.verts, given.faces, given.name, given.notes), None, None
     except MeshError as error:
         weld = welded(given)
         if weld is None:
-            raise
+            return given, None, error
         try:
             mesh = make_mesh(weld.mesh.verts, weld.mesh.faces, weld.mesh.name, weld.mesh.notes)
         except MeshError:
-            raise MeshError(soup_refusal(error, weld)) from None
+            return weld.mesh, weld, MeshError(soup_refusal(error, weld))
         logger.warning("%s", weld.note)
-        return mesh, weld
+        return mesh, weld, None
+
+
+def kept_reference_vertices(mesh: Mesh, kept: np.ndarray, corr: np.ndarray) -> np.ndarray:
+    """Reference vertices ``corr`` (K,) of ``mesh`` as vertices of its piece ``kept`` (V_piece,).
+
+    A reference vertex the piece left out moves to the piece's vertex nearest to it in space
+    (debris and bow-tie fans hold few of them).
+    """
+    from scipy.spatial import cKDTree
+
+    position = np.full(mesh.n_verts, -1, dtype=np.int64)
+    position[kept] = np.arange(kept.size)
+    moved = position[corr]
+    lost = np.flatnonzero(moved < 0)
+    if lost.size:
+        moved[lost] = cKDTree(mesh.verts[kept]).query(mesh.verts[corr[lost]])[1]
+        logger.warning(
+            "%s: %d reference points lay outside the piece kept; moved to its nearest vertex",
+            mesh.name,
+            lost.size,
+        )
+    return moved
 
 
 class SyntheticShapes:
@@ -237,11 +302,16 @@ def write_dataset(shapes, root: str | os.PathLike, names: list[str] | None = Non
     return root
 
 
-def open_dataset(root: str | os.PathLike | None, **synthetic_options) -> ShapeFolder | SyntheticShapes:
-    """A ShapeFolder for ``root``, or generated creatures when ``root`` is None or 'synthetic'."""
+def open_dataset(
+    root: str | os.PathLike | None,
+    repair: bool = False,
+    repair_option: str | None = None,
+    **synthetic_options,
+) -> ShapeFolder | SyntheticShapes:
+    """A ShapeFolder for ``root`` (see its ``repair``), or generated creatures for None or 'synthetic'."""
     if root in (None, "", "synthetic"):
         return SyntheticShapes(**synthetic_options)
     try:
-        return ShapeFolder(root)
+        return ShapeFolder(root, repair, repair_option)
     except MeshError as error:  # pragma: no cover - ShapeFolder only lists files
         raise DatasetError(str(error)) from error
