@@ -363,7 +363,7 @@ def test_every_file_a_run_writes_is_among_the_outputs_a_next_run_removes(tmp_pat
 
 @pytest.mark.parametrize("live_log", ["the live run's log\n", ""])
 def test_a_folder_held_by_a_live_run_is_refused(tmp_path, live_log):
-    """Refused with exit 2; the live run's log (Hydra's ``main.log`` there, empty or not) is left as it was."""
+    """Refused with exit 2; the live run's log (Hydra's ``main.log`` there, empty or not) is left alone."""
     folder = tmp_path / "run"
     command = [sys.executable, "-c", "from spidermatch.cli.main import match_main; match_main()"]
     with shutdown.folder_lock(folder):

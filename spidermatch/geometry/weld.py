@@ -10,14 +10,14 @@ vertex gets the image of the vertex it was welded into, and a target vertex is n
 first occurrence in the file. The faces keep their number and order.
 
 Repeats are welded where two faces meet on an edge by position (see :func:`_welded_numbering`):
-an STL stores the shared corner of two facets twice with the same bits. Vertices on a boundary
-count as one position when they lie closer than a thousandth of the median edge
-(:data:`NEAR_REPEAT_SHARE`): an exporter that places each part of a scene by its own node
-transform, in single precision, leaves the two sides of a seam a rounding error apart (2e-7 m
-on a body 1.7 m tall). Two coincident vertices of a valid surface stay two vertices. A vertex
-no face uses joins a used one at its position (the original of a vertex split along a seam,
-left unused by its exporter). A welded mesh is used only where it is valid or the mesh as given
-is not (:func:`spidermatch.api.mesh_of`).
+an STL stores the shared corner of two facets twice with the same bits. Vertices count as one
+position when they lie closer than a thousandth of the median edge (:data:`NEAR_REPEAT_SHARE`):
+an exporter that places each part of a scene by its own node transform, in single precision,
+leaves the two sides of a seam a rounding error apart (2e-7 m on a body 1.7 m tall). Two
+coincident vertices of a valid surface stay two vertices. A vertex no face uses joins a used one
+at its position (the original of a vertex split along a seam, left unused by its exporter). A
+welded mesh is used only where it is valid or the mesh as given is not
+(:func:`spidermatch.api.mesh_of`).
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ class Weld:
     to_file : np.ndarray, shape (V,), int64
         First vertex of the file at each welded vertex's position.
     gap : float
-        Largest distance between two boundary vertices taken as one position (0: exact repeats only).
+        Largest distance between two vertices taken as one position (0: exact repeats only).
     """
 
     mesh: Mesh
@@ -123,34 +123,32 @@ def welded(mesh: Mesh) -> Weld | None:
 
 
 NEAR_REPEAT_SHARE = 1e-3
-"""Boundary vertices closer than this share of the median edge length are one position."""
+"""Vertices closer than this share of the median edge length are one position."""
 
 
 def _with_near_repeats(
     verts: np.ndarray, faces: np.ndarray, position: np.ndarray
 ) -> tuple[np.ndarray, float]:
-    """``position`` (V_file,) with boundary positions closer than :data:`NEAR_REPEAT_SHARE` joined.
+    """``position`` (V_file,) with positions closer than :data:`NEAR_REPEAT_SHARE` joined.
 
-    Boundary positions are the ends of edges (by position) that one face alone has: a seam an
-    exporter split, or a rounding error left open. Returns the new numbering (0.., in the order
-    of the old one's first members) and the largest distance joined (0.0 if none).
+    Only positions, not vertices: which vertices are joined is decided by the faces that meet on
+    edges (:func:`_welded_numbering`). Every position counts, not only those on an open edge: a
+    fold of the surface (two faces on one triangle, as remeshing leaves where a body touches
+    itself) covers its own edges, and the copies of its corners in the scene's other objects must
+    be found all the same. Returns the new numbering (0.., in the order of the old one's first
+    members) and the largest distance joined (0.0 if none).
     """
-    n = int(position.max()) + 1
-    tail, head = position[faces].reshape(-1), position[faces[:, [1, 2, 0]]].reshape(-1)
-    keys, count = np.unique(np.minimum(tail, head) * n + np.maximum(tail, head), return_counts=True)
-    rim = np.unique(np.stack([keys[count == 1] // n, keys[count == 1] % n]))
-    if rim.size < 2:
-        return position, 0.0
     first = np.zeros(position.max() + 1, dtype=np.int64)
     first[position[::-1]] = np.arange(position.size)[::-1]  # a file vertex at each position
-    points = verts[first[rim]]
+    points = verts[first]
     lengths = np.linalg.norm(verts[faces[:, 1]] - verts[faces[:, 0]], axis=1)  # one edge a face
     reach = NEAR_REPEAT_SHARE * float(np.median(lengths))
     pairs = cKDTree(points).query_pairs(reach, output_type="ndarray")
     if len(pairs) == 0:
         return position, 0.0
     gap = float(np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1).max())
-    links = sp.coo_matrix((np.ones(len(pairs)), (rim[pairs[:, 0]], rim[pairs[:, 1]])), shape=(n, n))
+    n = len(points)
+    links = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     joined = connected_components(links, directed=False)[1]
     return np.unique(joined[position], return_inverse=True)[1].reshape(-1), gap
 
