@@ -21,6 +21,11 @@ files and on copies made the way users' files arrive:
     both meshes as binary STL files (a triangle soup: three vertices per facet, float32), the
     target in millimetres, turned and moved as ``scaled``; the run's outputs name the files'
     corners and are told back in the original vertices to be scored.
+``scene``
+    both meshes as glTF binary scenes (``.glb``) of ``SCENE_PARTS`` parts (bands of faces by
+    height), each stored in single precision moved away from the body and placed back by its
+    node's transform, as an exporter writes the objects of a scene; the target in millimetres,
+    turned and moved as ``scaled``. The two sides of each seam lie a rounding error apart.
 
 Loop subdivision keeps the original vertices first, so the ``corres/*.vts`` ground truth
 applies to the subdivided copies. Each match runs as a user runs it, without ground truth:
@@ -69,7 +74,9 @@ from spidermatch.geometry.partial import kept_part  # noqa: E402
 from spidermatch.geometry.remesh import decimate, nearest_vertices  # noqa: E402
 
 VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
-KINDS = ("clean", "scaled", "sub80k", "sub200k", "sub320k", "holes", "stl")
+KINDS = ("clean", "scaled", "sub80k", "sub200k", "sub320k", "holes", "stl", "scene")
+SCENE_PARTS = 3
+"""Parts of the ``scene`` copy, each with its own vertices and node transform."""
 SCAN_HOLES = (4, 6)
 """Small holes cut from the source and from the target by the ``holes`` copy."""
 HOLE_RINGS = 2
@@ -106,6 +113,8 @@ def copies(kind: str, meshes: list[Path], corr: list[Path], folder: Path, seed: 
         return holed_copies(meshes, corr, folder, rng)
     if kind == "stl":
         return stl_copies(meshes, folder, rng), corr
+    if kind == "scene":
+        return scene_copies(meshes, folder, rng), corr
     made_meshes, made_corr = [], []
     for path, truth in zip(meshes, corr):
         out, out_corr = folder / f"{path.stem}_{kind}.off", folder / f"{path.stem}_{kind}.vts"
@@ -135,6 +144,45 @@ def stl_copies(meshes: list[Path], folder: Path, rng) -> list[Path]:
         trimesh.Trimesh(verts, mesh.faces, process=False).export(out)
         made.append(out)
     return made
+
+
+def scene_copies(meshes: list[Path], folder: Path, rng) -> list[Path]:
+    """Both meshes as .glb scenes of ``SCENE_PARTS`` parts placed by node transforms (see the module)."""
+    import trimesh
+
+    made = []
+    for index, path in enumerate(meshes):
+        mesh = load_mesh(path)
+        verts = mesh.verts
+        if index == 1:
+            verts = 1000.0 * verts @ random_rotation(rng).T + rng.uniform(-2000, 2000, size=3)
+        height = verts[mesh.faces].mean(axis=1)[:, 1]
+        band = np.searchsorted(np.quantile(height, np.linspace(0, 1, SCENE_PARTS + 1)[1:-1]), height)
+        scene = trimesh.Scene()
+        for part in range(SCENE_PARTS):
+            used, local = np.unique(mesh.faces[band == part], return_inverse=True)
+            offset = rng.uniform(-5, 5, size=3) * np.ptp(verts, axis=0)  # where the part is stored
+            stored = trimesh.Trimesh(verts[used] - offset, local.reshape(-1, 3), process=False)
+            placement = trimesh.transformations.translation_matrix(offset)
+            scene.add_geometry(stored, node_name=f"part{part}", geom_name=f"part{part}", transform=placement)
+        out = folder / f"{path.stem}.glb"
+        out.write_bytes(trimesh.exchange.gltf.export_glb(scene))
+        np.save(out.with_suffix(".npy"), file_vertices_of(out, verts))
+        made.append(out)
+    return made
+
+
+def file_vertices_of(path: Path, placed: np.ndarray) -> np.ndarray:
+    """Original vertex (V_file,) at each vertex of the copy ``path`` as spidermatch reads it.
+
+    ``placed`` (V, 3) holds the original vertices where the copy puts them.
+    """
+    from scipy.spatial import cKDTree
+
+    copy = load_mesh(path, validate=False)
+    distance, vertex = cKDTree(placed).query(copy.verts)
+    assert distance.max() < 1e-6 * np.ptp(placed), f"{path}: a vertex lies off its original"
+    return vertex
 
 
 def holed_copies(meshes: list[Path], corr: list[Path], folder: Path, rng) -> tuple[list, list]:
@@ -205,18 +253,19 @@ def run_match(args, source: Path, target: Path, run_dir: Path) -> dict:
 
 
 def measured_errors(
-    run_dir: Path, meshes: list[Path], corr: list[Path], sample: np.ndarray, corners: bool = False
+    run_dir: Path, meshes: list[Path], corr: list[Path], sample: np.ndarray, vertex_of=None
 ) -> dict:
     """Mean geodesic errors of the run's sparse map (all matches) and dense map (``sample`` points).
 
-    With ``corners`` the run matched STL copies of ``meshes``: its outputs name the facets'
-    corners (3f + k is corner k of face f), told back here in the meshes' own vertices.
+    ``vertex_of``: the run matched copies of ``meshes`` (STL files, scenes) whose outputs name the
+    copies' own vertices; these two arrays (V_file,) give each one's vertex of ``meshes``, and the
+    maps are told back in them (the image of a vertex is that of its first copy).
     """
     start = time.perf_counter()
     source, target = load_mesh(meshes[0]), load_mesh(meshes[1])
     src_corr, tgt_corr = read_vts(corr[0], source.n_verts), read_vts(corr[1], target.n_verts)
-    source_vertex_of = source.faces.reshape(-1) if corners else np.arange(source.n_verts)
-    target_vertex_of = target.faces.reshape(-1) if corners else np.arange(target.n_verts)
+    source_vertex_of, target_vertex_of = vertex_of or (np.arange(source.n_verts), np.arange(target.n_verts))
+    corners = vertex_of is not None
     geodesics = GeodesicDistances(target)
     errors = {"sparse_error": None, "dense_error": None}
     if (run_dir / "matches.csv").is_file():
@@ -232,7 +281,7 @@ def measured_errors(
         ).mean
     if (run_dir / "dense_map.npz").is_file():
         vertex = np.load(run_dir / "dense_map.npz")["vertex"]
-        if corners:  # the image of each source vertex's first corner
+        if corners:  # the image of each source vertex's first copy
             first_corner = np.full(source.n_verts, -1)
             first_corner[source_vertex_of[::-1]] = np.arange(source_vertex_of.size)[::-1]
             vertex = target_vertex_of[vertex[first_corner]]
@@ -240,6 +289,13 @@ def measured_errors(
             vertex, src_corr[sample], tgt_corr[sample], target, geodesics
         ).mean
     return {**errors, "eval_s": round(time.perf_counter() - start, 1)}
+
+
+def copied_vertices(kind: str, meshes: list[Path], copies: list[Path]) -> tuple[np.ndarray, np.ndarray]:
+    """Each copy's vertices (V_file,) as vertices of ``meshes``: STL facet corners, a scene's saved map."""
+    if kind == "stl":
+        return tuple(load_mesh(path).faces.reshape(-1) for path in meshes)
+    return tuple(np.load(path.with_suffix(".npy")) for path in copies)
 
 
 def summary(rows: list[dict]) -> dict:
@@ -298,8 +354,9 @@ def main() -> None:
             pair_meshes, pair_corr = copies(kind, meshes, corr, work / "copies", seed=sum(map(ord, pair)))
             run_dir = work / "runs" / f"{pair.replace(':', '_')}_{kind}"
             row = {"pair": pair, "kind": kind, **run_match(args, *pair_meshes, run_dir)}
-            if kind == "stl":  # scored on the meshes the STL files were written from
-                row.update(measured_errors(run_dir, meshes, corr, sample, corners=True))
+            if kind in ("stl", "scene"):  # scored on the meshes the copies were written from
+                copied = copied_vertices(kind, meshes, pair_meshes)
+                row.update(measured_errors(run_dir, meshes, corr, sample, copied))
             else:
                 row.update(measured_errors(run_dir, pair_meshes, pair_corr, sample))
             print(json.dumps(row), flush=True)
