@@ -21,6 +21,10 @@ files and on copies made the way users' files arrive:
     both meshes as binary STL files (a triangle soup: three vertices per facet, float32), the
     target in millimetres, turned and moved as ``scaled``; the run's outputs name the files'
     corners and are told back in the original vertices to be scored.
+``noisy20k``
+    both meshes subdivided once at their edges' midpoints (about 20 000 vertices) with a
+    depth camera's noise: Gaussian in every direction, ``NOISY_SHARE`` of the bounding box's
+    diagonal (3.8 mm on a body 1.9 m across; the copies' edges are 5.6 mm long);
 ``scene``
     both meshes as glTF binary scenes (``.glb``) of ``SCENE_PARTS`` parts (bands of faces by
     height), each stored in single precision moved away from the body and placed back by its
@@ -74,7 +78,9 @@ from spidermatch.geometry.partial import kept_part  # noqa: E402
 from spidermatch.geometry.remesh import decimate, nearest_vertices  # noqa: E402
 
 VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
-KINDS = ("clean", "scaled", "sub80k", "sub200k", "sub320k", "holes", "stl", "scene")
+KINDS = ("clean", "scaled", "sub80k", "sub200k", "sub320k", "holes", "stl", "scene", "noisy20k")
+NOISY_SHARE = 0.002
+"""Noise of the ``noisy20k`` copies (standard deviation per axis) over the bounding box's diagonal."""
 SCENE_PARTS = 3
 """Parts of the ``scene`` copy, each with its own vertices and node transform."""
 SCAN_HOLES = (4, 6)
@@ -115,6 +121,8 @@ def copies(kind: str, meshes: list[Path], corr: list[Path], folder: Path, seed: 
         return stl_copies(meshes, folder, rng), corr
     if kind == "scene":
         return scene_copies(meshes, folder, rng), corr
+    if kind == "noisy20k":
+        return noisy_copies(meshes, folder, rng), corr
     made_meshes, made_corr = [], []
     for path, truth in zip(meshes, corr):
         out, out_corr = folder / f"{path.stem}_{kind}.off", folder / f"{path.stem}_{kind}.vts"
@@ -142,6 +150,22 @@ def stl_copies(meshes: list[Path], folder: Path, rng) -> list[Path]:
             verts = 1000.0 * verts @ random_rotation(rng).T + rng.uniform(-2000, 2000, size=3)
         out = folder / f"{path.stem}.stl"
         trimesh.Trimesh(verts, mesh.faces, process=False).export(out)
+        made.append(out)
+    return made
+
+
+def noisy_copies(meshes: list[Path], folder: Path, rng) -> list[Path]:
+    """Both meshes subdivided once with ``NOISY_SHARE`` noise (original vertices first: same truth)."""
+    import trimesh
+
+    made = []
+    for path in meshes:
+        mesh = load_mesh(path)
+        verts, faces = trimesh.remesh.subdivide(mesh.verts, mesh.faces)
+        diagonal = np.linalg.norm(np.ptp(verts, axis=0))
+        noisy = verts + rng.normal(scale=NOISY_SHARE * diagonal, size=verts.shape)
+        out = folder / f"{path.stem}_noisy20k.off"
+        save_mesh(Mesh(noisy, faces), out)
         made.append(out)
     return made
 

@@ -9,7 +9,9 @@ its nearest decimated vertices' features (rows re-normalised). ``bench/bench_use
 measures what this costs in accuracy. A mesh matched as a whole shape that has small holes (a
 scanner's, see :data:`spidermatch.geometry.mesh.SMALL_HOLE_SHARE`), or a part's target closed but
 for such holes, gets its features on a copy with those holes closed by fans
-(:func:`closed_for_features`).
+(:func:`closed_for_features`). A mesh rough with scan noise against its own edges (as shown to
+the extractor, after the cap) gets them on a smoothed copy of the same vertices
+(:mod:`spidermatch.geometry.smoothing`).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from spidermatch import defaults
 from spidermatch.geometry.holes import sides_to_close
 from spidermatch.geometry.mesh import Mesh, small_holes_closed
 from spidermatch.geometry.remesh import decimate
+from spidermatch.geometry.smoothing import ROUGH, smoothed_for_features
 from spidermatch.model.costs import unit_rows
 
 logger = logging.getLogger(__name__)
@@ -59,7 +62,9 @@ def pair_features(
     max_vertices : int, optional
         The cap (None or 0: every mesh at its own resolution).
     record : dict, optional
-        Receives, for each capped mesh, its name and the copy's vertex count.
+        Receives under ``computed_on_vertices`` each capped mesh's name and the copy's vertex
+        count, under ``smoothed_for_features`` each smoothed mesh's name, median roughness and
+        Taubin steps (:func:`shown_to_extractor`).
     partial : bool
         The source is a part of the target: an extractor with ``part_features(part, whole)``
         is given both meshes at once (the part measured in the whole's unit).
@@ -121,7 +126,7 @@ def _shown_pair(source: Mesh, target: Mesh, wholes, max_vertices, record):
         closed_for_features(mesh.centred(), is_whole) for mesh, is_whole in zip((source, target), wholes)
     ]
     capped = [capped_mesh(mesh, max_vertices, record) for mesh in centred]
-    shown = [mesh if low is None else low for low, mesh in zip(capped, centred)]
+    shown = [shown_to_extractor(mesh if low is None else low, record) for low, mesh in zip(capped, centred)]
     given = (source, target)
 
     def back(side: int, features: np.ndarray) -> np.ndarray:
@@ -156,7 +161,30 @@ def mesh_features(
     """
     centred = closed_for_features(mesh.centred(), whole)
     low = capped_mesh(centred, max_vertices, record)
-    return on_full_mesh(extractor(centred if low is None else low), low, centred)[: mesh.n_verts]
+    shown = shown_to_extractor(centred if low is None else low, record)
+    return on_full_mesh(extractor(shown), low, centred)[: mesh.n_verts]
+
+
+def shown_to_extractor(mesh: Mesh, record: dict | None = None) -> Mesh:
+    """``mesh`` (the one an extractor is given), smoothed first if scan noise makes it rough.
+
+    The copy has the same vertices in the same order (:func:`smoothed_for_features`), so the
+    features it gets are ``mesh``'s rows; ``record["smoothed_for_features"]`` names it.
+    """
+    smoothed, steps, roughness = smoothed_for_features(mesh)
+    if steps:
+        logger.info(
+            "%s: rough with scan noise (median roughness %.2f of its edges, above %.2f): features "
+            "computed on a copy smoothed in %d Taubin steps",
+            mesh.name,
+            roughness,
+            ROUGH,
+            steps,
+        )
+        if record is not None:
+            entry = {"median_roughness": round(roughness, 3), "taubin_steps": steps}
+            record.setdefault("smoothed_for_features", {})[mesh.name] = entry
+    return smoothed
 
 
 def on_full_mesh(features, low: Mesh | None, full: Mesh) -> np.ndarray:
@@ -169,7 +197,7 @@ def capped_mesh(mesh: Mesh, max_vertices: int | None, record: dict | None = None
     """``mesh`` decimated to about ``max_vertices`` vertices, or None when it has no more.
 
     The copy keeps the mesh's name, so that messages and the orientation search's log name
-    the user's file; ``record`` receives that name and the copy's vertex count.
+    the user's file; ``record["computed_on_vertices"]`` receives that name and the copy's vertex count.
     """
     if not max_vertices or mesh.n_verts <= max_vertices:
         return None
@@ -185,7 +213,7 @@ def capped_mesh(mesh: Mesh, max_vertices: int | None, record: dict | None = None
         time.perf_counter() - start,
     )
     if record is not None:
-        record[mesh.name] = low.n_verts
+        record.setdefault("computed_on_vertices", {})[mesh.name] = low.n_verts
     return Mesh(low.verts, low.faces, mesh.name, mesh.notes)
 
 

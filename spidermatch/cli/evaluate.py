@@ -35,26 +35,26 @@ class FeatureMemo:
     def of(self, key: str, mesh: Mesh) -> tuple[np.ndarray, dict]:
         """Features (V, D) of ``mesh`` (centred), computed on first use of ``key``, and their details."""
         if key not in self._cache:
-            capped = {}
-            features = mesh_features(self.extractor, mesh, self.max_vertices, capped)
-            self._cache[key] = (features, feature_details(self.extractor, capped))
+            record = {}
+            features = mesh_features(self.extractor, mesh, self.max_vertices, record)
+            self._cache[key] = (features, feature_details(self.extractor, record))
         return self._cache[key]
 
     def pair(self, inputs: MatchInputs, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray, str, dict]:
         """Features of a pair and how they were made; adaptive extractors and parts are never cached."""
         depends_on_pair = hasattr(self.extractor, "pair_features") or inputs.partial  # a part's: on its whole
         if depends_on_pair:
-            capped = {}
+            record = {}
             features = pair_features(
                 self.extractor,
                 inputs.source,
                 inputs.target,
                 self.max_vertices,
-                capped,
+                record,
                 partial=inputs.partial,
                 overlap=inputs.overlap,
             )
-            return *features, self.name, feature_details(self.extractor, capped)
+            return *features, self.name, feature_details(self.extractor, record)
         (feat_x, details_x), (feat_y, details_y) = (
             self.of(names[0], inputs.source),
             self.of(names[1], inputs.target),

@@ -255,23 +255,24 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
     """Features of both full-resolution (centred) meshes, the extractor's name, and how they were made.
 
     The last item (for ``result.json``) names the meshes whose features were computed on a
-    capped copy (``computed_on_vertices``) and how an orientation search presented each mesh.
+    capped copy (``computed_on_vertices``) or a smoothed one (``smoothed_for_features``) and how
+    an orientation search presented each mesh.
     """
     extractor = make_extractor(cfg)
     name = getattr(extractor, "name", type(extractor).__name__)
     if name == "wks":
         logger.info("features: WKS (no trained checkpoint given). %s", BETTER_FEATURES_HINT)
-    capped = {}
+    record = {}
     feat_x, feat_y = pair_features(
         extractor,
         inputs.source,
         inputs.target,
         feature_cap(cfg),
-        capped,
+        record,
         partial=inputs.partial,
         overlap=inputs.overlap,
     )
-    return feat_x, feat_y, name, feature_details(extractor, capped)
+    return feat_x, feat_y, name, feature_details(extractor, record)
 
 
 def second_opinion_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray]:
@@ -334,12 +335,13 @@ def overlap_inputs(inputs: MatchInputs, feat_x: np.ndarray, feat_y: np.ndarray, 
     return cut, feat_x[piece.to_original]
 
 
-def feature_details(extractor, capped: dict) -> dict:
-    """``computed_on_vertices`` and ``orientation`` of a features stage (empty ones left out).
+def feature_details(extractor, record: dict) -> dict:
+    """``computed_on_vertices``, ``smoothed_for_features`` and ``orientation`` of a features stage.
 
-    Logs the orientations and forgets them, so that the next pair reports its own.
+    ``record`` is what :func:`pair_features` filled; empty entries are left out. Logs the
+    orientations and forgets them, so that the next pair reports its own.
     """
-    details = {"computed_on_vertices": dict(capped)} if capped else {}
+    details = {key: dict(value) for key, value in record.items() if value}
     orientations = getattr(extractor, "orientations", None)
     if orientations:
         details["orientation"] = {key: value.describe() for key, value in orientations.items()}
