@@ -111,7 +111,7 @@ def copies(kind: str, meshes: list[Path], corr: list[Path], folder: Path, seed: 
     folder.mkdir(parents=True, exist_ok=True)
     if kind == "scaled":
         mesh = load_mesh(meshes[1])
-        moved = 1000.0 * mesh.verts @ random_rotation(rng).T + rng.uniform(-2000, 2000, size=3)
+        moved = in_millimetres_turned(mesh.verts, rng)
         out = folder / f"{meshes[1].stem}_mm.off"
         save_mesh(Mesh(moved, mesh.faces), out)
         return [meshes[0], out], corr
@@ -138,6 +138,11 @@ def copies(kind: str, meshes: list[Path], corr: list[Path], folder: Path, seed: 
     return made_meshes, made_corr
 
 
+def in_millimetres_turned(verts: np.ndarray, rng) -> np.ndarray:
+    """``verts`` (V, 3) in metres as a user's target arrives: in millimetres, turned and moved."""
+    return 1000.0 * verts @ random_rotation(rng).T + rng.uniform(-2000, 2000, size=3)
+
+
 def stl_copies(meshes: list[Path], folder: Path, rng) -> list[Path]:
     """Both meshes written as binary STL (the target in mm, turned and moved), as a scanner exports them."""
     import trimesh
@@ -145,9 +150,7 @@ def stl_copies(meshes: list[Path], folder: Path, rng) -> list[Path]:
     made = []
     for index, path in enumerate(meshes):
         mesh = load_mesh(path)
-        verts = mesh.verts
-        if index == 1:
-            verts = 1000.0 * verts @ random_rotation(rng).T + rng.uniform(-2000, 2000, size=3)
+        verts = in_millimetres_turned(mesh.verts, rng) if index == 1 else mesh.verts
         out = folder / f"{path.stem}.stl"
         trimesh.Trimesh(verts, mesh.faces, process=False).export(out)
         made.append(out)
@@ -177,9 +180,7 @@ def scene_copies(meshes: list[Path], folder: Path, rng) -> list[Path]:
     made = []
     for index, path in enumerate(meshes):
         mesh = load_mesh(path)
-        verts = mesh.verts
-        if index == 1:
-            verts = 1000.0 * verts @ random_rotation(rng).T + rng.uniform(-2000, 2000, size=3)
+        verts = in_millimetres_turned(mesh.verts, rng) if index == 1 else mesh.verts
         height = verts[mesh.faces].mean(axis=1)[:, 1]
         band = np.searchsorted(np.quantile(height, np.linspace(0, 1, SCENE_PARTS + 1)[1:-1]), height)
         scene = trimesh.Scene()
