@@ -26,7 +26,7 @@ from spidermatch import defaults
 from spidermatch.geometry.holes import sides_to_close
 from spidermatch.geometry.mesh import Mesh, small_holes_closed
 from spidermatch.geometry.remesh import decimate
-from spidermatch.geometry.smoothing import ROUGH, smoothed_for_features
+from spidermatch.geometry.smoothing import ROUGH, smoothed_if_rough
 from spidermatch.model.costs import unit_rows
 
 logger = logging.getLogger(__name__)
@@ -168,10 +168,10 @@ def mesh_features(
 def shown_to_extractor(mesh: Mesh, record: dict | None = None) -> Mesh:
     """``mesh`` (the one an extractor is given), smoothed first if scan noise makes it rough.
 
-    The copy has the same vertices in the same order (:func:`smoothed_for_features`), so the
+    The copy has the same vertices in the same order (:func:`smoothed_if_rough`), so the
     features it gets are ``mesh``'s rows; ``record["smoothed_for_features"]`` names it.
     """
-    smoothed, steps, roughness = smoothed_for_features(mesh)
+    smoothed, steps, roughness = smoothed_if_rough(mesh)
     if steps:
         logger.info(
             "%s: rough with scan noise (median roughness %.2f of its edges, above %.2f): features "

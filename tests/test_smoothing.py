@@ -9,7 +9,7 @@ from spidermatch.data.synthetic import make_creature
 from spidermatch.feature_transfer import mesh_features
 from spidermatch.geometry.descriptors import WKSExtractor
 from spidermatch.geometry.mesh import Mesh
-from spidermatch.geometry.smoothing import ROUGH, SMOOTH, roughness, smoothed_for_features
+from spidermatch.geometry.smoothing import ROUGH, SMOOTH, roughness, smoothed_if_rough
 
 
 @pytest.fixture(scope="module")
@@ -37,13 +37,13 @@ def test_roughness_tells_scan_noise_from_the_shape(fine):
 
 
 def test_a_smooth_mesh_is_shown_to_the_extractor_as_it_is(fine):
-    shown, steps, _ = smoothed_for_features(fine)
+    shown, steps, _ = smoothed_if_rough(fine)
     assert shown is fine and steps == 0
 
 
 def test_a_noisy_mesh_is_smoothed_keeping_its_vertices(fine):
     scan = noisy(fine, 0.4)
-    shown, steps, before = smoothed_for_features(scan)
+    shown, steps, before = smoothed_if_rough(scan)
     assert before > ROUGH and steps > 0
     assert np.array_equal(shown.faces, scan.faces) and shown.name == scan.name
     assert np.median(roughness(shown.verts, shown.faces)) <= SMOOTH

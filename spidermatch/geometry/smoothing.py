@@ -66,7 +66,7 @@ def roughness(verts: np.ndarray, faces: np.ndarray, edges: np.ndarray | None = N
     return np.abs(offset) / np.maximum(mean_edge, 1e-300)
 
 
-def smoothed_for_features(mesh: Mesh) -> tuple[Mesh, int, float]:
+def smoothed_if_rough(mesh: Mesh) -> tuple[Mesh, int, float]:
     """``mesh`` as its features should see it, the Taubin steps taken and its median roughness before.
 
     A mesh at most :data:`ROUGH` rough is returned as it is (0 steps); a rougher one is smoothed
