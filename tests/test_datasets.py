@@ -163,10 +163,13 @@ def test_a_folder_of_raw_scans_names_every_bad_shape_with_what_the_repair_would_
         ShapeFolder(tmp_path).load("b_debris")  # no option named where none can be set
 
 
-def test_a_repaired_shape_keeps_its_ground_truth_on_the_piece(tmp_path):
+def test_a_repaired_shape_keeps_its_ground_truth_on_the_piece(tmp_path, caplog):
     creature, truth = _raw_scan_folder(tmp_path)
     folder = ShapeFolder(tmp_path, repair=True, repair_option="data.repair=true")
     assert folder.unusable(folder.names) == []
+    folder.load("b_debris")  # checked, then loaded: its repair is told once
+    told = [record.message for record in caplog.records if "data.repair=true uses" in record.message]
+    assert len(told) == 2 and "b_debris.off" in told[0] and "c_stray.off" in told[1]
     for name in folder.names:
         shape = folder.load(name)
         assert shape.mesh.n_verts == creature.n_verts

@@ -184,9 +184,10 @@ class ShapeFolder:
             if self.repair_option is None:
                 raise refusal
             raise MeshError(f"{refusal}; {self.repair_option} would use {repaired.summary}")
-        logger.warning(
-            "%s: %s uses %s (as given: %s)", readable.name, self.repair_option, repaired.summary, refusal
-        )
+        if readable.name not in self._repair_told:  # once a shape, though checked before it is loaded
+            self._repair_told.add(readable.name)
+            option = self.repair_option or "the repair"
+            logger.warning("%s: %s uses %s (as given: %s)", readable.name, option, repaired.summary, refusal)
         return repaired.piece.mesh, repaired
 
     def unusable(self, names: list[str]) -> list[str]:
