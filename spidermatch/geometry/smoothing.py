@@ -6,13 +6,17 @@ descriptors and DiffusionNet are built on follows the noise, not the body: FAUST
 subdivided once (20 000 vertices) with Gaussian noise of 0.2 % of its diagonal doubled the dense
 map's error (0.020 to 0.041) while the same noise on the 5 000-vertex mesh cost nothing.
 
-The roughness of a vertex is the normal component of its umbrella vector (the mean of its
-neighbours minus itself) over its mean edge: about 0.06 on a smooth subdivided body, 0.11 on
-the FAUST_r meshes as remeshed from scans, up to 0.07 on TOSCA, 0.2 and more on noisy scans. A
-mesh whose median roughness exceeds :data:`ROUGH` gets its features on a copy smoothed by Taubin
-steps (a shrinking step and an inflating one, so the body keeps its size) until its median is
-down to :data:`SMOOTH`; the copy has the same vertices and faces, so the features are the
-mesh's own rows. Meshes below :data:`ROUGH` are left exactly as they are.
+The roughness of a vertex is how much the normal part of its umbrella vector (the mean of
+its neighbours minus itself) differs from its neighbours' own, over its mean edge. The
+umbrella vector alone also measures curvature, which a coarse mesh of a curved body has
+against its edges as much as a fine one has noise (a FAUST_r body decimated to 1000
+vertices, an icosphere of 162); its change from vertex to vertex is noise alone: 0.026 on
+FAUST_r tr_reg_070, 0.038 and 0.047 on it decimated to 1000 and 500 vertices, 0.038 on TOSCA
+dog3, at most 0.061 on smooth subdivided or generated bodies, 0.17-0.27 on the noisy copies
+above. A mesh whose median roughness exceeds :data:`ROUGH` gets its features on a copy
+smoothed by Taubin steps (a shrinking step and an inflating one, so the body keeps its size)
+until its median is down to :data:`SMOOTH`; the copy has the same vertices and faces, so the
+features are the mesh's own rows. Meshes below :data:`ROUGH` are left exactly as they are.
 """
 
 from __future__ import annotations
@@ -22,11 +26,11 @@ import scipy.sparse as sp
 
 from spidermatch.geometry.mesh import Mesh, unique_edges, vertex_normals
 
-ROUGH = 0.15
+ROUGH = 0.12
 """Median roughness above which a mesh's features are computed on a smoothed copy."""
 
-SMOOTH = 0.1
-"""Median roughness the smoothing stops at."""
+SMOOTH = 0.05
+"""Median roughness the smoothing stops at (clean bodies' level)."""
 
 MAX_STEPS = 40
 """Taubin steps (each a shrinking and an inflating pass) at most."""
@@ -46,7 +50,10 @@ def _umbrella(verts: np.ndarray, edges: np.ndarray) -> sp.csr_matrix:
 
 
 def roughness(verts: np.ndarray, faces: np.ndarray, edges: np.ndarray | None = None) -> np.ndarray:
-    """Each vertex's roughness (V,): the normal part of its umbrella vector over its mean edge.
+    """Each vertex's roughness (V,): its umbrella offset's change from its neighbours', over its mean edge.
+
+    The umbrella offset is the normal part of the mean of a vertex's neighbours minus itself;
+    a smooth surface, however coarse, changes it slowly from vertex to vertex, noise does not.
 
     Parameters
     ----------
@@ -63,7 +70,7 @@ def roughness(verts: np.ndarray, faces: np.ndarray, edges: np.ndarray | None = N
     degree = np.bincount(edges.reshape(-1), minlength=n)
     mean_edge = length_sum / np.maximum(degree, 1)
     offset = np.einsum("vd,vd->v", average @ verts - verts, vertex_normals(verts, faces))
-    return np.abs(offset) / np.maximum(mean_edge, 1e-300)
+    return np.abs(offset - average @ offset) / np.maximum(mean_edge, 1e-300)
 
 
 def smoothed_if_rough(mesh: Mesh) -> tuple[Mesh, int, float]:
