@@ -413,6 +413,15 @@ def test_a_loose_requested_gap_is_not_called_optimal():
     assert within_optimal_gap(near_zero).status == "optimal"
 
 
+def test_api_names_a_faces_and_vertices_pair_given_the_wrong_way_round():
+    import spidermatch
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    swapped = r"must be integers, got dtype float64; .*given as \(faces, vertices\)\?"
+    with pytest.raises(MeshError, match=swapped):
+        spidermatch.match((sphere.faces, sphere.vertices), (sphere.vertices, sphere.faces))
+
+
 def test_api_rejects_a_gap_of_one_or_more():
     import spidermatch
 

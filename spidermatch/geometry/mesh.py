@@ -287,7 +287,9 @@ def _check_number_types(verts: np.ndarray, faces: np.ndarray, name: str) -> None
         kind = "complex numbers" if verts.dtype.kind == "c" else f"values of dtype {verts.dtype}"
         raise MeshError(f"{name}: vertex coordinates must be real numbers, got {kind}")
     if not np.issubdtype(faces.dtype, np.integer):
-        raise MeshError(f"{name}: face indices must be integers, got dtype {faces.dtype}")
+        swapped = verts.dtype.kind in "iu" and faces.dtype.kind == "f"
+        hint = "; the vertices are integers and the faces not: given as (faces, vertices)?" if swapped else ""
+        raise MeshError(f"{name}: face indices must be integers, got dtype {faces.dtype}{hint}")
 
 
 PRECISION_EDGE_SHARE = 0.1
