@@ -32,8 +32,8 @@ def noisy(mesh: Mesh, share_of_edge: float) -> Mesh:
 
 
 def test_roughness_tells_scan_noise_from_the_shape(fine):
-    assert np.median(roughness(fine.verts, fine.faces)) < SMOOTH
-    assert np.median(roughness(noisy(fine, 0.4).verts, fine.faces)) > ROUGH
+    assert np.median(roughness(fine)) < SMOOTH
+    assert np.median(roughness(noisy(fine, 0.4))) > ROUGH
 
 
 def test_a_smooth_mesh_is_shown_to_the_extractor_as_it_is(fine):
@@ -57,7 +57,7 @@ def test_a_noisy_mesh_is_smoothed_keeping_its_vertices(fine):
     shown, steps, before = smoothed_if_rough(scan)
     assert before > ROUGH and steps > 0
     assert np.array_equal(shown.faces, scan.faces) and shown.name == scan.name
-    assert np.median(roughness(shown.verts, shown.faces)) <= SMOOTH
+    assert np.median(roughness(shown)) <= SMOOTH
     # closer to the surface the noise was added to, and as large (Taubin steps do not shrink it)
     assert (
         np.linalg.norm(shown.verts - fine.verts, axis=1).mean()

@@ -121,6 +121,16 @@ class Mesh:
         """
         return self.cached("augmented_edges", lambda: augment_edges(self.faces))
 
+    def with_positions(self, verts: np.ndarray) -> Mesh:
+        """The same faces, name and notes at other vertex positions ``verts`` (V, 3).
+
+        What depends on the faces alone (the edges) is carried over, not computed again.
+        """
+        moved = Mesh(verts, self.faces, self.name, self.notes)
+        if "edges" in self._cache:
+            moved._cache["edges"] = self._cache["edges"]
+        return moved
+
     def centred(self) -> Mesh:
         """Return a copy translated so that the mean vertex lies at the origin."""
         return Mesh(self.verts - self.verts.mean(axis=0), self.faces, self.name, self.notes)

@@ -24,7 +24,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from spidermatch.geometry.mesh import Mesh, unique_edges, vertex_normals
+from spidermatch.geometry.mesh import Mesh, mean_incident_edge_length, vertex_normals
+from spidermatch.geometry.partial import edge_adjacency
 
 ROUGH = 0.12
 """Median roughness above which a mesh's features are computed on a smoothed copy."""
@@ -39,38 +40,24 @@ SHRINK, INFLATE = 0.5, -0.53
 """Taubin's two factors (lambda and mu)."""
 
 
-def _umbrella(verts: np.ndarray, edges: np.ndarray) -> sp.csr_matrix:
-    """Row-normalised vertex adjacency (V, V): row i averages vertex i's neighbours."""
-    n = verts.shape[0]
-    rows = np.concatenate([edges[:, 0], edges[:, 1]])
-    cols = np.concatenate([edges[:, 1], edges[:, 0]])
-    adjacency = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+def neighbour_average(mesh: Mesh) -> sp.csr_matrix:
+    """Row-normalised edge graph (V, V): row i averages vertex i's neighbours."""
+    adjacency = edge_adjacency(mesh)
     degree = np.asarray(adjacency.sum(axis=1)).reshape(-1)
     return sp.diags(1.0 / np.maximum(degree, 1.0)) @ adjacency
 
 
-def roughness(verts: np.ndarray, faces: np.ndarray, edges: np.ndarray | None = None) -> np.ndarray:
+def roughness(mesh: Mesh, average: sp.csr_matrix | None = None) -> np.ndarray:
     """Each vertex's roughness (V,): its umbrella offset's change from its neighbours', over its mean edge.
 
     The umbrella offset is the normal part of the mean of a vertex's neighbours minus itself;
     a smooth surface, however coarse, changes it slowly from vertex to vertex, noise does not.
-
-    Parameters
-    ----------
-    verts : np.ndarray, shape (V, 3)
-    faces : np.ndarray, shape (F, 3)
-    edges : np.ndarray, shape (E, 2), optional
-        The unique edges of ``faces`` (computed when not given).
+    ``average``: :func:`neighbour_average` of the mesh (or of one with its faces), if at hand.
     """
-    edges = unique_edges(faces) if edges is None else edges
-    average = _umbrella(verts, edges)
-    lengths = np.linalg.norm(verts[edges[:, 0]] - verts[edges[:, 1]], axis=1)
-    n = verts.shape[0]
-    length_sum = np.bincount(edges[:, 0], lengths, n) + np.bincount(edges[:, 1], lengths, n)
-    degree = np.bincount(edges.reshape(-1), minlength=n)
-    mean_edge = length_sum / np.maximum(degree, 1)
-    offset = np.einsum("vd,vd->v", average @ verts - verts, vertex_normals(verts, faces))
-    return np.abs(offset - average @ offset) / np.maximum(mean_edge, 1e-300)
+    average = neighbour_average(mesh) if average is None else average
+    verts = mesh.verts
+    offset = np.einsum("vd,vd->v", average @ verts - verts, vertex_normals(verts, mesh.faces))
+    return np.abs(offset - average @ offset) / np.maximum(mean_incident_edge_length(mesh), 1e-300)
 
 
 def smoothed_if_rough(mesh: Mesh) -> tuple[Mesh, int, float]:
@@ -80,17 +67,16 @@ def smoothed_if_rough(mesh: Mesh) -> tuple[Mesh, int, float]:
     in Taubin steps until its median roughness is at most :data:`SMOOTH` (or after
     :data:`MAX_STEPS`). The copy keeps the vertex order, faces, name and notes.
     """
-    edges = unique_edges(mesh.faces)
-    before = float(np.median(roughness(mesh.verts, mesh.faces, edges)))
+    average = neighbour_average(mesh)
+    before = float(np.median(roughness(mesh, average)))
     if before <= ROUGH:
         return mesh, 0, before
-    average = _umbrella(mesh.verts, edges)
     verts = np.array(mesh.verts, dtype=np.float64)
     steps = 0
     while steps < MAX_STEPS:
         for factor in (SHRINK, INFLATE):
             verts += factor * (average @ verts - verts)
         steps += 1
-        if steps % 2 == 0 and np.median(roughness(verts, mesh.faces, edges)) <= SMOOTH:
+        if steps % 2 == 0 and np.median(roughness(mesh.with_positions(verts), average)) <= SMOOTH:
             break
-    return Mesh(verts, mesh.faces, mesh.name, mesh.notes), steps, before
+    return mesh.with_positions(verts), steps, before
