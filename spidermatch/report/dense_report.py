@@ -101,9 +101,7 @@ def write_dense_outputs(
         else (dense.vertex[rows], dense.face[rows], dense.bary[rows])
     )
     every = image_vertex
-    if (
-        vertex_ids is not None
-    ):  # a row per source vertex (of the file, where it was welded): -1 outside the piece
+    if vertex_ids is not None:  # a row per source vertex (the file's, where welded); -1 outside the piece
         every = np.full(source_weld.n_file if source_weld is not None else n_source, -1, dtype=np.int64)
         every[vertex_ids] = image_vertex
     _write_vertex_pairs(csv_path, every, "source_vertex,target_vertex")
