@@ -74,3 +74,30 @@ def test_farther_than_answers_as_the_exact_distances_do(creature):
     answer = farther_than(creature, a, b, bound)
     np.testing.assert_array_equal(answer, exact > bound)
     assert 0.1 < answer.mean() < 0.9
+
+
+def test_on_a_noisy_surface_most_pairs_are_settled_by_short_searches(creature, monkeypatch):
+    """Noise as large as the edges stalls the greedy walk; a search up to the bound around every
+    such pair would cover thousands of vertices each. Short searches settle most, exactly."""
+    from spidermatch.geometry.graph_distance import farther_than
+
+    rng = np.random.default_rng(4)
+    edge = float(np.median(creature.edge_lengths))
+    noisy = creature.with_positions(creature.verts + rng.normal(scale=1.5 * edge, size=creature.verts.shape))
+    a, b = nearby_pairs(noisy, 2000, 2 * edge, seed=4)
+    bound = rng.uniform(15, 25, size=len(a)) * float(np.median(noisy.edge_lengths))
+    searched = []
+    exact_search = graph_distance.graph_distances_between
+
+    def recording(mesh, a, b, limit):
+        searched.append((limit, len(a)))
+        return exact_search(mesh, a, b, limit)
+
+    monkeypatch.setattr(graph_distance, "graph_distances_between", recording)
+    answer = farther_than(noisy, a, b, bound)
+    np.testing.assert_array_equal(answer, full_graph_distances(noisy, a, b, np.inf) > bound)
+    first_limit, stalled = searched[0]
+    longest_limit, still_open = searched[-1]
+    assert stalled > 0.3 * len(a)  # the greedy walk stalled for these
+    assert first_limit < 0.5 * bound.min() and longest_limit == bound.max()
+    assert still_open < 0.1 * stalled

@@ -16,7 +16,10 @@ them have a cheap answer: two vertices farther apart in space than the bound are
 along the edges too, and a greedy walk from one to the other (each step to the neighbour
 nearest the goal) that arrives within the bound is a path, so their distance is at most its
 length. Only the pairs both tests leave open are searched; on a fine mesh, where a bound
-of a few per cent of the shape spans many edges, that is almost none.
+of a few per cent of the shape spans many edges, that is almost none. On a noisy scan the
+walk stalls for most pairs, and a search up to the bound around each would cover thousands
+of vertices: the searches start a few edges long and only the pairs still open search
+farther.
 """
 
 from __future__ import annotations
@@ -36,6 +39,9 @@ BLOCK_CELLS = 4_000_000
 
 BLOCK_STARTS = 512
 """Start vertices per Dijkstra block at most."""
+
+FIRST_SEARCH_EDGES = 4.0
+"""Limit of :func:`farther_than`'s first search, in median edge lengths (each further one doubles it)."""
 
 
 def edge_lengths_between(mesh: Mesh, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -186,10 +192,32 @@ def farther_than(mesh: Mesh, a: np.ndarray, b: np.ndarray, bound: np.ndarray) ->
     far = np.linalg.norm(mesh.verts[a] - mesh.verts[b], axis=1) > bound
     near = np.flatnonzero(~far)
     open_ = near[greedy_path_lengths(mesh, a[near], b[near], bound[near]) > bound[near]]
-    if open_.size:
-        limit = float(bound[open_].max())
-        far[open_] = graph_distances_between(mesh, a[open_], b[open_], limit) > bound[open_]
+    for limit in _search_limits(mesh, bound[open_]):
+        distance = graph_distances_between(mesh, a[open_], b[open_], limit)
+        decided = (distance <= bound[open_]) | (bound[open_] <= limit)
+        far[open_[decided]] = distance[decided] > bound[open_[decided]]
+        open_ = open_[~decided]
     return far
+
+
+def _search_limits(mesh: Mesh, bounds: np.ndarray) -> list[float]:
+    """The search limits of :func:`farther_than`'s rounds: doubling from a few edges to the largest bound.
+
+    A search up to a limit costs about the vertices within it around each start, which grows
+    with the limit squared (on a crumpled, noisy surface faster still). Most open pairs are
+    joined by a short path that the greedy walk missed (on a noisy scan it stalls after a step
+    or two) and are settled by a short search; only the pairs left go on to a longer one. Each
+    round is exact up to its limit, so the answers are those of one search up to the largest bound.
+    """
+    if not bounds.size:
+        return []
+    largest = float(bounds.max())
+    limit = FIRST_SEARCH_EDGES * float(np.median(mesh.edge_lengths))
+    limits = []
+    while limit < largest:
+        limits.append(limit)
+        limit *= 2.0
+    return limits + [largest]
 
 
 def greedy_path_lengths(mesh: Mesh, a: np.ndarray, b: np.ndarray, limit: np.ndarray) -> np.ndarray:
