@@ -362,5 +362,52 @@ def test_a_large_source_shows_the_dense_stage_progress_and_gets_the_same_map(
     shown = densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features)
     bar = capsys.readouterr().err
     rounds = DenseSettings().deformation_rounds
-    assert f"dense map of {x.mesh.n_verts} vertices" in bar and f"{rounds + 3}/{rounds + 3}" in bar
+    assert f"dense map of {x.mesh.n_verts} vertices ({rounds + 3} steps): 100%" in bar
     assert np.array_equal(shown.vertex, quiet.vertex) and np.array_equal(shown.bary, quiet.bary)
+
+
+def centroid_split(mesh, faces_to_split):
+    """``mesh`` with the given faces each split into three at its centroid (needles, high degrees)."""
+    from spidermatch.geometry.mesh import Mesh
+
+    split = mesh.faces[faces_to_split]
+    new = mesh.n_verts + np.arange(len(split))
+    verts = np.vstack([mesh.verts, mesh.verts[split].mean(axis=1)])
+    a, b, c = split.T
+    pieces = np.concatenate([np.stack([a, b, new], 1), np.stack([b, c, new], 1), np.stack([c, a, new], 1)])
+    kept = np.delete(mesh.faces, faces_to_split, axis=0)
+    return Mesh(verts, np.vstack([kept, pieces]))
+
+
+def test_choices_of_members_of_very_different_valences_do_not_depend_on_their_chunk(monkeypatch):
+    """Tables are trimmed to each chunk's widest member: alone or among the widest, the same choice."""
+    import spidermatch.dense.unfold as unfold
+
+    mesh = make_creature(800, seed=5).mesh
+    for _ in range(3):  # the faces around vertex 0, split again and again: degrees up to about 40
+        near = np.argsort(np.linalg.norm(mesh.verts[mesh.faces].mean(axis=1) - mesh.verts[0], axis=1))[:40]
+        mesh = centroid_split(mesh, near)
+    context = unfold._Rounding.between(mesh, mesh)
+    assert context.target_degree.max() > 30 and np.median(context.target_degree) <= 6
+    rng = np.random.default_rng(0)
+    rings = unfold.vertex_rings(mesh)
+    vertex = rings[np.arange(mesh.n_verts), rng.integers(0, 3, size=mesh.n_verts)]  # identity, shaken
+    group = unfold.independent_groups(np.arange(mesh.n_verts), mesh.edges, mesh.n_verts)[0]
+    points = mesh.verts[group] + rng.normal(scale=1e-3, size=(len(group), 3))
+    widths = [len(part) for part in unfold._chunks_by_width(context, group, vertex[group])]
+    monkeypatch.setattr(unfold, "CHOICE_CELLS", 1)  # every member alone, as wide as itself
+    alone = unfold._best_choices(context, vertex, group, vertex[group], points)
+    monkeypatch.setattr(unfold, "CHOICE_CELLS", 10**12)  # one chunk, as wide as its widest member
+    together = unfold._best_choices(context, vertex, group, vertex[group], points)
+    np.testing.assert_array_equal(alone, together)
+    assert (alone != vertex[group]).mean() > 0.1 and len(widths) > 1  # choices were made; chunks were cut
+
+
+def test_the_rounding_reports_its_progress_within_its_step(creature_pair, wks_features):
+    from spidermatch.dense.unfold import unfolded_vertices
+
+    x, y, low_x, low_y, low_map, _ = creature_pair
+    rounded = densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features, DenseSettings(unfold=False))
+    shares = []
+    unfolded_vertices(x.mesh, y.mesh, rounded.vertex, rounded.points(y.mesh), progress=shares.append)
+    assert len(shares) > 3 and np.all(np.diff(shares) >= 0) and 0 < shares[0] and shares[-1] <= 1

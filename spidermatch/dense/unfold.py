@@ -22,6 +22,7 @@ resolution has (the ground truth of FAUST_r has about a third), and they are cou
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -79,6 +80,7 @@ def unfolded_vertices(
     vertex: np.ndarray,
     points: np.ndarray,
     fixed: np.ndarray | None = None,
+    progress: Callable[[float], None] | None = None,
 ) -> np.ndarray:
     """The vertex map ``vertex`` (V_X,) with vertices of flipped triangles and torn edges moved to mend them.
 
@@ -91,6 +93,9 @@ def unfolded_vertices(
         The image points.
     fixed : np.ndarray, shape (K,), optional
         Source vertices that keep their target vertex (e.g. certified matches).
+    progress : callable, optional
+        Called with the share of the work done so far (0 to 1; each sweep counts as
+        1 / :data:`SWEEPS`, its groups by their sizes).
 
     Returns
     -------
@@ -106,18 +111,22 @@ def unfolded_vertices(
         movable[np.asarray(fixed, dtype=np.int64)] = False
     status = _MendStatus.of(vertex, context)
     ledger = _ChoiceLedger.empty(source.n_verts)
-    for _ in range(SWEEPS):
+    for sweep in range(SWEEPS):
         candidates = status.vertices()
+        candidates = candidates[movable[candidates]]
         changed = np.zeros(source.n_verts, dtype=bool)
-        for group in independent_groups(candidates[movable[candidates]], source.edges, source.n_verts):
+        decided = 0
+        for group in independent_groups(candidates, source.edges, source.n_verts):
+            decided += len(group)
             group = group[ledger.stale(group)]
-            if not group.size:
-                continue
-            chosen = _best_choices(context, vertex, group, nearest[group], points[group])
-            moved = group[chosen != vertex[group]]
-            vertex[group] = chosen
-            ledger.record(group, moved, context.neighbours)
-            changed[moved] = True
+            if group.size:
+                chosen = _best_choices(context, vertex, group, nearest[group], points[group])
+                moved = group[chosen != vertex[group]]
+                vertex[group] = chosen
+                ledger.record(group, moved, context.neighbours)
+                changed[moved] = True
+            if progress is not None:
+                progress((sweep + decided / len(candidates)) / SWEEPS)
         if not changed.any():
             break
         status.update(vertex, changed)
@@ -235,19 +244,45 @@ class _Rounding:
     around: np.ndarray  # (V_X, max faces) source faces at each source vertex, -1 padded
     neighbours: np.ndarray  # (V_X, 1 + max degree) each source vertex and its neighbours
     local_edge: np.ndarray  # (V_Y,) mean edge length at each target vertex
+    target_degree: np.ndarray  # (V_Y,) neighbours of each target vertex (real entries of its ``rings`` row)
+    source_degree: np.ndarray  # (V_X,) neighbours of each source vertex
+    source_face_count: np.ndarray  # (V_X,) faces at each source vertex (real entries of its ``around`` row)
 
     @classmethod
     def between(cls, source: Mesh, target: Mesh) -> _Rounding:
         """The tables of a map from ``source`` to ``target``."""
+        rings, around, neighbours = vertex_rings(target), vertex_face_table(source), vertex_rings(source)
         return cls(
             source,
             target,
             vertex_normals(target.verts, target.faces),
-            vertex_rings(target),
-            vertex_face_table(source),
-            vertex_rings(source),
+            rings,
+            around,
+            neighbours,
             mean_incident_edge_length(target),
+            _row_degrees(rings),
+            _row_degrees(neighbours),
+            (around >= 0).sum(axis=1),
         )
+
+    def allowed_length(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """How long the images of source edges (a, b) may be: the tear threshold or STRETCH times theirs.
+
+        An edge that is long on the source too (a coarse mesh) is not torn by a long image.
+        """
+        scale = np.sqrt(self.target.area / self.source.area)
+        own = np.linalg.norm(self.source.verts[a] - self.source.verts[b], axis=-1) * scale
+        return np.maximum(self.threshold, STRETCH * own)
+
+    @property
+    def threshold(self) -> float:
+        """The tear threshold on the target."""
+        return TEAR_THRESHOLD * np.sqrt(self.target.area)
+
+
+def _row_degrees(rings: np.ndarray) -> np.ndarray:
+    """Neighbours in each row of a ring table (V, 1 + max degree) padded with the row's own vertex."""
+    return (rings[:, 1:] != rings[:, :1]).sum(axis=1)
 
     def allowed_length(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """How long the images of source edges (a, b) may be: the tear threshold or STRETCH times theirs.
@@ -277,7 +312,8 @@ def _best_choices(
 
     Each member takes, among the target vertices within two edges of its ``start``, the one
     with the fewest flipped image triangles plus stretched image edges, then the nearest to
-    its image point; a chunk of members at a time (:data:`CHOICE_CELLS`).
+    its image point; a chunk of members of about the same valences at a time
+    (:func:`_chunks_by_width`, :data:`CHOICE_CELLS`).
 
     Parameters
     ----------
@@ -296,12 +332,8 @@ def _best_choices(
 
     """
     out = np.empty(len(group), dtype=np.int64)
-    choices = _TwoRings.around(context.target, context.rings, start)
-    width = choices.vertex.shape[1] * max(context.around.shape[1], context.neighbours.shape[1])
-    step = max(1, CHOICE_CELLS // width)
-    for begin in range(0, len(group), step):
-        part = slice(begin, begin + step)
-        mine = choices.part(part)
+    for part in _chunks_by_width(context, group, start):
+        mine = _TwoRings.around(context.target, context.rings, start[part], context.target_degree)
         cost = _flip_counts(context, vertex, group[part], mine.vertex)
         cost += _tear_counts(context, vertex, group[part], start[part], mine)
         distance = np.linalg.norm(context.target.verts[mine.vertex] - points[part, None], axis=2)
@@ -310,6 +342,32 @@ def _best_choices(
         )
         out[part] = mine.vertex[np.arange(len(cost)), np.argmin(cost, axis=1)]
     return out
+
+
+def _chunks_by_width(context: _Rounding, group: np.ndarray, start: np.ndarray) -> list[np.ndarray]:
+    """Positions in ``group`` (G,) split into chunks of members whose tables are about as wide.
+
+    A member weighs at most (1 + its start's degree) x (1 + its start's neighbours' largest
+    degree) choices against its faces or neighbours. Tables padded to the widest member of a
+    whole group cost, on a mesh with a few vertices of degree 60 (faces split at their
+    centroids), a hundred times the work of a regular one: members are sorted by that count
+    and each chunk is as wide as its own widest member, with at most :data:`CHOICE_CELLS` cells.
+    """
+    degree = context.target_degree
+    second = degree[context.rings[start]].max(axis=1)
+    own = np.maximum(context.source_face_count[group], context.source_degree[group])
+    cells = (1 + degree[start]) * (1 + second) * np.maximum(own, 1)
+    order = np.argsort(cells, kind="stable")
+    cells = cells[order]
+    chunks, begin = [], 0
+    while begin < len(order):
+        # The widest member of a chunk is its last: the longest run from ``begin`` within the cap.
+        sizes = np.arange(1, len(order) - begin + 1)
+        fits = cells[begin:] * sizes <= CHOICE_CELLS
+        size = max(1, int(np.flatnonzero(fits)[-1]) + 1) if fits.any() else 1
+        chunks.append(order[begin : begin + size])
+        begin += size
+    return chunks
 
 
 @dataclass(frozen=True)
@@ -324,10 +382,11 @@ class _TwoRings:
     valid: np.ndarray  # (N, C) bool
 
     @classmethod
-    def around(cls, target: Mesh, rings: np.ndarray, start: np.ndarray) -> _TwoRings:
+    def around(cls, target: Mesh, rings: np.ndarray, start: np.ndarray, degree: np.ndarray) -> _TwoRings:
+        """The rows of ``start`` (N,); ``degree`` (V,) of each target vertex trims the padded ``rings``."""
         start = np.asarray(start, dtype=np.int64)
-        middle = rings[start]  # (N, K)
-        ends = rings[middle]  # (N, K, K)
+        middle = rings[start][:, : 1 + int(degree[start].max())]  # (N, K1)
+        ends = rings[middle][:, :, : 1 + int(degree[middle].max())]  # (N, K1, K2)
         verts = target.verts
         first = np.linalg.norm(verts[middle] - verts[start][:, None], axis=2)
         length = (
@@ -344,20 +403,27 @@ class _TwoRings:
         ends, length, fresh = ends[:, :width], length[:, :width], fresh[:, :width]
         return cls(np.where(fresh, ends, start[:, None]), np.where(fresh, length, 0.0), fresh)
 
-    def part(self, rows: slice) -> _TwoRings:
-        return _TwoRings(self.vertex[rows], self.length[rows], self.valid[rows])
-
 
 def _flip_counts(
     context: _Rounding, vertex: np.ndarray, members: np.ndarray, choices: np.ndarray
 ) -> np.ndarray:
     """Flipped image triangles around each member (M,) for each of its choices (M, C), shape (M, C)."""
-    around = context.around[members]  # (M, f)
+    around = context.around[members][:, : max(1, int(context.source_face_count[members].max()))]  # (M, f)
     real = around >= 0
     faces = context.source.faces[np.where(real, around, 0)]  # (M, f, 3)
-    own_corner = faces == members[:, None, None]
-    trial = np.where(own_corner[:, None], choices[:, :, None, None], vertex[faces][:, None])  # (M, C, f, 3)
-    flips = flipped_triangles(trial.reshape(-1, 3), context.target, context.normals).reshape(trial.shape[:3])
+    own_corner = (faces == members[:, None, None])[:, None, :, :, None]  # (M, 1, f, 3, 1)
+    # Positions and normals put together by broadcasting (the same numbers as gathering them for
+    # every trial triangle, which took most of the time): a member's choices, its faces' other corners.
+    verts, normals = context.target.verts, context.normals
+    others = vertex[faces]  # (M, f, 3)
+    corners = np.where(
+        own_corner, verts[choices][:, :, None, None], verts[others][:, None]
+    )  # (M, C, f, 3, 3)
+    corner_normals = np.where(own_corner, normals[choices][:, :, None, None], normals[others][:, None])
+    shape = corners.shape[:3]
+    flips = oriented_triangles(
+        corners.reshape(-1, 3, 3), corner_normals.reshape(-1, 3, 3).sum(axis=1), context.target
+    )[0].reshape(shape)
     return (flips & real[:, None, :]).sum(axis=2)
 
 
@@ -371,7 +437,9 @@ def _tear_counts(
     v by a greedy walk). Only the pairs these two bounds leave undecided go to
     :func:`~spidermatch.geometry.graph_distance.farther_than`.
     """
-    neighbours = context.neighbours[members, 1:]  # (M, d), padded with the member itself
+    neighbours = context.neighbours[
+        members, 1 : 1 + max(1, int(context.source_degree[members].max()))
+    ]  # (M, d)
     real = neighbours != members[:, None]
     allowed = context.allowed_length(np.broadcast_to(members[:, None], neighbours.shape), neighbours)
     images = vertex[neighbours]
