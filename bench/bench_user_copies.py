@@ -25,6 +25,13 @@ files and on copies made the way users' files arrive:
     both meshes subdivided once at their edges' midpoints (about 20 000 vertices) with a
     depth camera's noise: Gaussian in every direction, ``NOISY_SHARE`` of the bounding box's
     diagonal (3.8 mm on a body 1.9 m across; the copies' edges are 5.6 mm long);
+``noisy80k``
+    the same noise on meshes subdivided twice (about 80 000 vertices, edges 2.8 mm: the noise is
+    larger than the edges, the surface crumpled);
+``needles``
+    the faces of the upper body (centroids above the median height) split three times at their
+    centroids (about 57 000 vertices, vertices of degree up to 64 among needle triangles; the
+    rest at the original density), as some exporters triangulate;
 ``scene``
     both meshes as glTF binary scenes (``.glb``) of ``SCENE_PARTS`` parts (bands of faces by
     height), each stored in single precision moved away from the body and placed back by its
@@ -68,7 +75,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_scaling import write_rows  # noqa: E402
 
-from spidermatch.data.synthetic import random_rotation  # noqa: E402
+from spidermatch.data.synthetic import centroid_split, random_rotation  # noqa: E402
 from spidermatch.eval.errors import dense_map_errors, sparse_map_errors  # noqa: E402
 from spidermatch.geometry.geodesics import GeodesicDistances  # noqa: E402
 from spidermatch.geometry.io import load_mesh, read_vts, save_mesh, write_vts  # noqa: E402
@@ -78,9 +85,13 @@ from spidermatch.geometry.partial import kept_part  # noqa: E402
 from spidermatch.geometry.remesh import decimate, nearest_vertices  # noqa: E402
 
 VALIDATION_PAIRS = [f"tr_reg_{i:03d}:tr_reg_{i + 1:03d}" for i in range(70, 80, 2)]
-KINDS = ("clean", "scaled", "sub80k", "sub200k", "sub320k", "holes", "stl", "scene", "noisy20k")
+KINDS = ("clean", "scaled", "sub80k", "sub200k", "sub320k", "holes", "stl", "scene")
+KINDS += ("noisy20k", "noisy80k", "needles")
 NOISY_SHARE = 0.002
-"""Noise of the ``noisy20k`` copies (standard deviation per axis) over the bounding box's diagonal."""
+"""Noise of the ``noisy*`` copies (standard deviation per axis) over the bounding box's diagonal."""
+NOISY_SUBDIVISIONS = {"noisy20k": 1, "noisy80k": 2}
+NEEDLE_SPLITS = 3
+"""Times the ``needles`` copy splits the upper body's faces at their centroids."""
 SCENE_PARTS = 3
 """Parts of the ``scene`` copy, each with its own vertices and node transform."""
 SCAN_HOLES = (4, 6)
@@ -121,8 +132,10 @@ def copies(kind: str, meshes: list[Path], corr: list[Path], folder: Path, seed: 
         return stl_copies(meshes, folder, rng), corr
     if kind == "scene":
         return scene_copies(meshes, folder, rng), corr
-    if kind == "noisy20k":
-        return noisy_copies(meshes, folder, rng), corr
+    if kind in NOISY_SUBDIVISIONS:
+        return noisy_copies(meshes, folder, rng, kind), corr
+    if kind == "needles":
+        return needle_copies(meshes, folder), corr
     made_meshes, made_corr = [], []
     for path, truth in zip(meshes, corr):
         out, out_corr = folder / f"{path.stem}_{kind}.off", folder / f"{path.stem}_{kind}.vts"
@@ -157,18 +170,35 @@ def stl_copies(meshes: list[Path], folder: Path, rng) -> list[Path]:
     return made
 
 
-def noisy_copies(meshes: list[Path], folder: Path, rng) -> list[Path]:
-    """Both meshes subdivided once with ``NOISY_SHARE`` noise (original vertices first: same truth)."""
+def noisy_copies(meshes: list[Path], folder: Path, rng, kind: str) -> list[Path]:
+    """Both meshes subdivided with ``NOISY_SHARE`` noise (original vertices first: same truth)."""
     import trimesh
 
     made = []
     for path in meshes:
         mesh = load_mesh(path)
-        verts, faces = trimesh.remesh.subdivide(mesh.verts, mesh.faces)
+        verts, faces = mesh.verts, mesh.faces
+        for _ in range(NOISY_SUBDIVISIONS[kind]):
+            verts, faces = trimesh.remesh.subdivide(verts, faces)
         diagonal = np.linalg.norm(np.ptp(verts, axis=0))
         noisy = verts + rng.normal(scale=NOISY_SHARE * diagonal, size=verts.shape)
-        out = folder / f"{path.stem}_noisy20k.off"
+        out = folder / f"{path.stem}_{kind}.off"
         save_mesh(Mesh(noisy, faces), out)
+        made.append(out)
+    return made
+
+
+def needle_copies(meshes: list[Path], folder: Path) -> list[Path]:
+    """Both meshes with the upper body's faces split ``NEEDLE_SPLITS`` times at their centroids."""
+    made = []
+    for path in meshes:
+        mesh = load_mesh(path)
+        verts, faces = mesh.verts, mesh.faces
+        upper = verts[faces].mean(axis=1)[:, 1] > np.median(verts[:, 1])
+        for _ in range(NEEDLE_SPLITS):
+            verts, faces, upper = centroid_split(verts, faces, upper)
+        out = folder / f"{path.stem}_needles.off"
+        save_mesh(Mesh(verts, faces), out)
         made.append(out)
     return made
 

@@ -366,33 +366,26 @@ def test_a_large_source_shows_the_dense_stage_progress_and_gets_the_same_map(
     assert np.array_equal(shown.vertex, quiet.vertex) and np.array_equal(shown.bary, quiet.bary)
 
 
-def centroid_split(mesh, faces_to_split):
-    """``mesh`` with the given faces each split into three at its centroid (needles, high degrees)."""
-    from spidermatch.geometry.mesh import Mesh
-
-    split = mesh.faces[faces_to_split]
-    new = mesh.n_verts + np.arange(len(split))
-    verts = np.vstack([mesh.verts, mesh.verts[split].mean(axis=1)])
-    a, b, c = split.T
-    pieces = np.concatenate([np.stack([a, b, new], 1), np.stack([b, c, new], 1), np.stack([c, a, new], 1)])
-    kept = np.delete(mesh.faces, faces_to_split, axis=0)
-    return Mesh(verts, np.vstack([kept, pieces]))
-
-
 def test_choices_of_members_of_very_different_valences_do_not_depend_on_their_chunk(monkeypatch):
     """Tables are trimmed to each chunk's widest member: alone or among the widest, the same choice."""
     import spidermatch.dense.unfold as unfold
+    from spidermatch.data.synthetic import centroid_split
+    from spidermatch.geometry.mesh import Mesh
 
     mesh = make_creature(800, seed=5).mesh
+    verts, faces = mesh.verts, mesh.faces
+    chosen = np.linalg.norm(verts[faces].mean(axis=1) - verts[0], axis=1) < 0.1 * np.sqrt(mesh.area)
     for _ in range(3):  # the faces around vertex 0, split again and again: degrees up to about 40
-        near = np.argsort(np.linalg.norm(mesh.verts[mesh.faces].mean(axis=1) - mesh.verts[0], axis=1))[:40]
-        mesh = centroid_split(mesh, near)
+        verts, faces, chosen = centroid_split(verts, faces, chosen)
+    mesh = Mesh(verts, faces)
     context = unfold._Rounding.between(mesh, mesh)
     assert context.target_degree.max() > 30 and np.median(context.target_degree) <= 6
     rng = np.random.default_rng(0)
     rings = unfold.vertex_rings(mesh)
     vertex = rings[np.arange(mesh.n_verts), rng.integers(0, 3, size=mesh.n_verts)]  # identity, shaken
     group = unfold.independent_groups(np.arange(mesh.n_verts), mesh.edges, mesh.n_verts)[0]
+    widest = np.argsort(context.target_degree[vertex[group]])
+    group = np.sort(group[np.concatenate([widest[:30], widest[-30:]])])  # the narrowest and the widest
     points = mesh.verts[group] + rng.normal(scale=1e-3, size=(len(group), 3))
     widths = [len(part) for part in unfold._chunks_by_width(context, group, vertex[group])]
     monkeypatch.setattr(unfold, "CHOICE_CELLS", 1)  # every member alone, as wide as itself
@@ -411,3 +404,33 @@ def test_the_rounding_reports_its_progress_within_its_step(creature_pair, wks_fe
     shares = []
     unfolded_vertices(x.mesh, y.mesh, rounded.vertex, rounded.points(y.mesh), progress=shares.append)
     assert len(shares) > 3 and np.all(np.diff(shares) >= 0) and 0 < shares[0] and shares[-1] <= 1
+
+
+def test_tear_counts_of_every_choice_are_those_of_the_exact_distances_on_a_noisy_target():
+    """The bounds through the member's start decide most pairs; every count is the exact one."""
+    from scipy.sparse.csgraph import dijkstra
+
+    import spidermatch.dense.unfold as unfold
+
+    clean = make_creature(1200, seed=6).mesh
+    rng = np.random.default_rng(6)
+    edge = float(np.median(clean.edge_lengths))
+    noisy = clean.with_positions(clean.verts + rng.normal(scale=edge, size=clean.verts.shape))
+    context = unfold._Rounding.between(clean, noisy)
+    rings = unfold.vertex_rings(noisy)
+    vertex = rings[np.arange(noisy.n_verts), rng.integers(0, 4, size=noisy.n_verts)]
+    members = unfold.independent_groups(np.arange(clean.n_verts), clean.edges, clean.n_verts)[0][:300]
+    start = vertex[members]
+    choices = unfold._TwoRings.around(noisy, rings, start, context.target_degree)
+    counts = unfold._tear_counts(context, vertex, members, start, choices)
+    everywhere = dijkstra(noisy.edge_graph())
+    expected = np.zeros_like(counts)
+    for row, member in enumerate(members):
+        for neighbour in unfold.vertex_rings(clean)[member, 1:]:
+            if neighbour == member:
+                continue
+            allowed = context.allowed_length(np.array([member]), np.array([neighbour]))[0]
+            expected[row] += everywhere[choices.vertex[row], vertex[neighbour]] > allowed
+    valid = choices.valid
+    np.testing.assert_array_equal(counts[valid], expected[valid])
+    assert 0 < counts[valid].mean() < 5  # some edges torn, most not

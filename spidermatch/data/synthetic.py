@@ -189,3 +189,24 @@ def creature_pair_ground_truth(source: SyntheticCreature, target: SyntheticCreat
     """Dense ground truth: the target vertex nearest to each source vertex's parameter, (V_src,)."""
     _, nearest = cKDTree(target.params).query(source.params)
     return np.asarray(nearest, dtype=np.int64)
+
+
+def centroid_split(verts: np.ndarray, faces: np.ndarray, chosen: np.ndarray) -> tuple:
+    """The ``chosen`` faces (F,) bool each split into three at a new centroid vertex (appended).
+
+    Needle triangles and vertices of high degree, as some exporters triangulate; the original
+    vertices keep their indices (ground truth on them still holds).
+
+    Returns the new vertices (V', 3), faces (F', 3) and which faces came from chosen ones (F',).
+    """
+    split = faces[chosen]
+    centre = len(verts) + np.arange(len(split))
+    a, b, c = split.T
+    pieces = np.concatenate(
+        [np.stack([a, b, centre], 1), np.stack([b, c, centre], 1), np.stack([c, a, centre], 1)]
+    )
+    new_faces = np.vstack([faces[~chosen], pieces])
+    from_chosen = np.concatenate(
+        [np.zeros(int((~chosen).sum()), dtype=bool), np.ones(len(pieces), dtype=bool)]
+    )
+    return np.vstack([verts, verts[split].mean(axis=1)]), new_faces, from_chosen

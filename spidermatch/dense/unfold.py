@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spidermatch.eval.metrics import TEAR_THRESHOLD, oriented_triangles
-from spidermatch.geometry.graph_distance import farther_than, greedy_path_lengths
+from spidermatch.geometry.graph_distance import distances_within, farther_than
 from spidermatch.geometry.mesh import Mesh, mean_incident_edge_length
 from spidermatch.geometry.operators import vertex_normals
 from spidermatch.geometry.surface import vertex_face_table, vertex_rings
@@ -432,10 +432,13 @@ def _tear_counts(
 ) -> np.ndarray:
     """Stretched image edges at each member (M,) for each of its choices, shape (M, C).
 
-    The distance from a choice c to a neighbour's image v lies between their distance in space
-    and the length of a path through the member's start s: (c to s within two edges) + (s to
-    v by a greedy walk). Only the pairs these two bounds leave undecided go to
-    :func:`~spidermatch.geometry.graph_distance.farther_than`.
+    With s the member's start, c a choice and v a neighbour's image: c lies within
+    ``length(c)`` of s (a path of at most two edges), so the distance from c to v lies between
+    d(s, v) - length(c) and d(s, v) + length(c), and is at least their distance in space.
+    d(s, v) is searched once per neighbour (up to the allowed length plus the longest choice,
+    inf beyond), not once per choice; only the pairs these bounds leave undecided go to
+    :func:`~spidermatch.geometry.graph_distance.farther_than`. (A greedy walk in place of the
+    search stalls on a noisy scan, and then every choice of every member was searched.)
     """
     neighbours = context.neighbours[
         members, 1 : 1 + max(1, int(context.source_degree[members].max()))
@@ -443,23 +446,26 @@ def _tear_counts(
     real = neighbours != members[:, None]
     allowed = context.allowed_length(np.broadcast_to(members[:, None], neighbours.shape), neighbours)
     images = vertex[neighbours]
+    longest_choice = np.where(choices.valid, choices.length, 0.0).max(axis=1)  # (M,)
     from_start = np.full(neighbours.shape, np.inf)
-    from_start[real] = greedy_path_lengths(
+    from_start[real] = distances_within(
         context.target,
         np.broadcast_to(start[:, None], real.shape)[real],
         images[real],
-        allowed[real],
+        (allowed + longest_choice[:, None])[real],
     )
     shape = (len(members), choices.vertex.shape[1], neighbours.shape[1])
     verts = context.target.verts
     apart = np.linalg.norm(verts[choices.vertex][:, :, None] - verts[images][:, None], axis=3)
     allowed = np.broadcast_to(allowed[:, None, :], shape)
-    far = apart > allowed
-    near = choices.length[:, :, None] + from_start[:, None, :] <= allowed
+    length = choices.length[:, :, None]
+    far = (apart > allowed) | (from_start[:, None, :] - length > allowed)
+    near = length + from_start[:, None, :] <= allowed
     open_ = np.flatnonzero((~far & ~near & real[:, None, :] & choices.valid[:, :, None]).ravel())
     if open_.size:
         a = np.broadcast_to(choices.vertex[:, :, None], shape).ravel()[open_]
         b = np.broadcast_to(images[:, None, :], shape).ravel()[open_]
+        at_least = np.maximum(apart, from_start[:, None, :] - length).ravel()[open_]
         # Searched from the neighbours' images: fewer of them than of choices.
-        far.reshape(-1)[open_] = farther_than(context.target, b, a, allowed.ravel()[open_])
+        far.reshape(-1)[open_] = farther_than(context.target, b, a, allowed.ravel()[open_], at_least)
     return (far & real[:, None, :]).sum(axis=2)

@@ -172,7 +172,9 @@ def _next_block(
         size = max(1, size // 2)
 
 
-def farther_than(mesh: Mesh, a: np.ndarray, b: np.ndarray, bound: np.ndarray) -> np.ndarray:
+def farther_than(
+    mesh: Mesh, a: np.ndarray, b: np.ndarray, bound: np.ndarray, at_least: np.ndarray | None = None
+) -> np.ndarray:
     """Whether ``a[n]`` and ``b[n]`` lie farther apart along the mesh's edges than ``bound[n]``.
 
     Parameters
@@ -180,6 +182,9 @@ def farther_than(mesh: Mesh, a: np.ndarray, b: np.ndarray, bound: np.ndarray) ->
     mesh : Mesh
     a, b : np.ndarray, shape (N,), int
     bound : np.ndarray, shape (N,) (or a float)
+    at_least : np.ndarray, shape (N,), optional
+        What the caller knows the distances to be at least: searches shorter than all of them
+        cannot settle a pair and are skipped.
 
     Returns
     -------
@@ -192,7 +197,8 @@ def farther_than(mesh: Mesh, a: np.ndarray, b: np.ndarray, bound: np.ndarray) ->
     far = np.linalg.norm(mesh.verts[a] - mesh.verts[b], axis=1) > bound
     near = np.flatnonzero(~far)
     open_ = near[greedy_path_lengths(mesh, a[near], b[near], bound[near]) > bound[near]]
-    for limit in _search_limits(mesh, bound[open_]):
+    floor = float(np.min(at_least[open_], initial=np.inf)) if at_least is not None and open_.size else 0.0
+    for limit in _search_limits(mesh, bound[open_], floor):
         distance = graph_distances_between(mesh, a[open_], b[open_], limit)
         decided = (distance <= bound[open_]) | (bound[open_] <= limit)
         far[open_[decided]] = distance[decided] > bound[open_[decided]]
@@ -200,7 +206,37 @@ def farther_than(mesh: Mesh, a: np.ndarray, b: np.ndarray, bound: np.ndarray) ->
     return far
 
 
-def _search_limits(mesh: Mesh, bounds: np.ndarray) -> list[float]:
+def distances_within(mesh: Mesh, a: np.ndarray, b: np.ndarray, bound: np.ndarray) -> np.ndarray:
+    """Shortest edge-graph distance from ``a[n]`` to ``b[n]`` where at most ``bound[n]``, else inf.
+
+    :func:`graph_distances_between` with a bound per pair, searched as :func:`farther_than`
+    searches (a few edges first, doubling): each pair costs the search its own distance needs.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    a, b : np.ndarray, shape (N,), int
+    bound : np.ndarray, shape (N,) (or a float)
+
+    Returns
+    -------
+    np.ndarray, shape (N,)
+
+    """
+    a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+    bound = np.broadcast_to(np.asarray(bound, dtype=np.float64), a.shape)
+    out = np.full(len(a), np.inf)
+    open_ = np.flatnonzero(np.linalg.norm(mesh.verts[a] - mesh.verts[b], axis=1) <= bound)
+    for limit in _search_limits(mesh, bound[open_]):
+        distance = graph_distances_between(mesh, a[open_], b[open_], limit)
+        found = np.isfinite(distance)
+        out[open_[found]] = distance[found]
+        open_ = open_[~found & (bound[open_] > limit)]
+    out[out > bound] = np.inf
+    return out
+
+
+def _search_limits(mesh: Mesh, bounds: np.ndarray, floor: float = 0.0) -> list[float]:
     """The search limits of :func:`farther_than`'s rounds: doubling from a few edges to the largest bound.
 
     A search up to a limit costs about the vertices within it around each start, which grows
@@ -208,11 +244,12 @@ def _search_limits(mesh: Mesh, bounds: np.ndarray) -> list[float]:
     joined by a short path that the greedy walk missed (on a noisy scan it stalls after a step
     or two) and are settled by a short search; only the pairs left go on to a longer one. Each
     round is exact up to its limit, so the answers are those of one search up to the largest bound.
+    No pair is nearer than ``floor``: the first search goes at least that far.
     """
     if not bounds.size:
         return []
     largest = float(bounds.max())
-    limit = FIRST_SEARCH_EDGES * float(np.median(mesh.edge_lengths))
+    limit = max(FIRST_SEARCH_EDGES * float(np.median(mesh.edge_lengths)), floor)
     limits = []
     while limit < largest:
         limits.append(limit)
