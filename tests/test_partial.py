@@ -368,3 +368,16 @@ def test_an_overlap_of_almost_nothing_is_refused_with_the_source_named(creature)
     with pytest.raises(MeshError, match=re.escape(f"{creature.name}: no overlap with the target found")):
         overlap_part(creature, region)
     assert overlap_part(creature, np.ones(creature.n_verts, dtype=bool)).kept_area == pytest.approx(1.0)
+
+
+def test_two_cut_parts_matched_as_wholes_by_default_are_warned_about(creature):
+    """Upper and lower halves: one cut loop each, so the default reads them as two whole shapes;
+    the reading is kept but said (the cut loops named, partial=both offered), not put down to holes."""
+    normal = np.array([0.0, 1.0, 0.0])
+    lower = plane_cut(creature, normal, 0.6, "lower.off").mesh
+    upper = plane_cut(creature, -normal, 0.6, "upper.off").mesh
+    kind = pair_kind(upper, lower)
+    assert kind.mode == "whole"
+    assert "small holes" not in kind.reason and "cut" in kind.reason
+    assert "partial=both" in kind.caution and "upper.off" in kind.caution and "lower.off" in kind.caution
+    assert pair_kind(creature, creature).caution == ""  # two closed shapes: nothing to say

@@ -423,7 +423,8 @@ def pair_kind(source: Mesh, target: Mesh, partial: bool = True) -> PairKind:
     ratio = source.area / target.area
     same = (top_x.genus, top_x.open_boundaries) == (top_y.genus, top_y.open_boundaries)
     if same and not cut_against_hole(top_x, top_y, ratio):
-        return PairKind("whole", whole_reason(source, target, top_x, top_y), ratio)
+        caution = two_parts_caution(source, target, top_x, top_y) if top_x.open_boundaries else ""
+        return PairKind("whole", whole_reason(source, target, top_x, top_y), ratio, caution)
     refusal = (
         f"the meshes differ in topology: {source.name} has {top_x}, {target.name} has {top_y}. "
         "SpiderMatch maps a curve through all of the source onto the target"
@@ -507,6 +508,11 @@ def larger_part_caution(source: Mesh, target: Mesh, ratio: float) -> str:
 
 def whole_reason(source: Mesh, target: Mesh, top_x: Topology, top_y: Topology) -> str:
     """Why a pair is matched as two whole shapes: both the same, small holes tolerated (named)."""
+    if top_x.open_boundaries:  # cut loops on both (as many): parts of the same extent, or not
+        return (
+            f"{source.name} is {top_x} and {target.name} {top_y}: as many cut loops (boundaries that "
+            "are not where a scanner saw nothing) on each, so both are matched as whole shapes of that topology"
+        )
     if not (top_x.small_holes or top_y.small_holes):  # then the two topologies are equal
         return f"both meshes are {top_x}"
     return (
@@ -514,6 +520,18 @@ def whole_reason(source: Mesh, target: Mesh, top_x: Topology, top_y: Topology) -
         f"{SMALL_HOLE_SHARE:.1%} of its mesh's area, in the surface, not across a limb) are where a scanner "
         "saw nothing, not cuts, so both are "
         "matched as whole shapes"
+    )
+
+
+def two_parts_caution(source: Mesh, target: Mesh, top_x: Topology, top_y: Topology) -> str:
+    """What matching two cut meshes as whole shapes assumes: they cover the same region."""
+    return (
+        f"{source.name} and {target.name} are both cut open (their widest boundary loops span "
+        f"{top_x.widest_span:.1%} and {top_y.widest_span:.1%} of their areas): matched as whole shapes, "
+        "which is right only if they cover the same region of the shape. If they are different parts "
+        "of one body (two views, an upper and a lower half), partial=both matches them on their "
+        "estimated overlap instead; a map of one part laid over another is not caught by the quality "
+        "verdict on a target with boundaries"
     )
 
 
