@@ -284,20 +284,6 @@ def _row_degrees(rings: np.ndarray) -> np.ndarray:
     """Neighbours in each row of a ring table (V, 1 + max degree) padded with the row's own vertex."""
     return (rings[:, 1:] != rings[:, :1]).sum(axis=1)
 
-    def allowed_length(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """How long the images of source edges (a, b) may be: the tear threshold or STRETCH times theirs.
-
-        An edge that is long on the source too (a coarse mesh) is not torn by a long image.
-        """
-        scale = np.sqrt(self.target.area / self.source.area)
-        own = np.linalg.norm(self.source.verts[a] - self.source.verts[b], axis=-1) * scale
-        return np.maximum(self.threshold, STRETCH * own)
-
-    @property
-    def threshold(self) -> float:
-        """The tear threshold on the target."""
-        return TEAR_THRESHOLD * np.sqrt(self.target.area)
-
 
 def _stretched_edges(edges: np.ndarray, vertex: np.ndarray, context: _Rounding) -> np.ndarray:
     """Source edges (E, 2) whose image vertices lie farther apart along the target than allowed, bool (E,)."""

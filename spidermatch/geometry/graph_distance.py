@@ -40,6 +40,10 @@ BLOCK_CELLS = 4_000_000
 BLOCK_STARTS = 512
 """Start vertices per Dijkstra block at most."""
 
+BLOCK_EXTENT = 4.0
+"""A block's starts lie within a box of this many search limits across (its search covers the box:
+consecutive starts in Z-order can lie far apart where few are asked, e.g. a short first search)."""
+
 FIRST_SEARCH_EDGES = 4.0
 """Limit of :func:`farther_than`'s first search, in median edge lengths (each further one doubles it)."""
 
@@ -162,14 +166,23 @@ def _next_block(
     size = min(BLOCK_STARTS, len(ordered_starts) - begin)
     if size * len(verts) <= BLOCK_CELLS:
         return ordered_starts[begin : begin + size], np.arange(len(verts))
+    size = _compact_run(verts[ordered_starts[begin : begin + size]], BLOCK_EXTENT * limit)
     while True:
         block = ordered_starts[begin : begin + size]
         low, high = verts[block].min(axis=0), verts[block].max(axis=0)
         radius = 0.5 * float(np.linalg.norm(high - low)) + limit * (1 + 1e-9)
-        local = np.sort(np.asarray(tree.query_ball_point(0.5 * (low + high), r=radius), dtype=np.int64))
-        if size == 1 or size * len(local) <= BLOCK_CELLS:
-            return block, local
-        size = max(1, size // 2)
+        centre = 0.5 * (low + high)
+        if size > 1 and size * tree.query_ball_point(centre, r=radius, return_length=True) > BLOCK_CELLS:
+            size //= 2  # counted, not listed: a ball of 100 000 vertices takes long to list
+            continue
+        return block, np.sort(np.asarray(tree.query_ball_point(centre, r=radius), dtype=np.int64))
+
+
+def _compact_run(points: np.ndarray, extent: float) -> int:
+    """How many of ``points`` (N, 3), from the first on, fit a box of diagonal ``extent`` (at least 1)."""
+    low, high = np.minimum.accumulate(points, axis=0), np.maximum.accumulate(points, axis=0)
+    wide = np.linalg.norm(high - low, axis=1) > extent
+    return max(1, int(np.argmax(wide)) if wide.any() else len(points))
 
 
 def farther_than(
@@ -197,26 +210,27 @@ def farther_than(
     far = np.linalg.norm(mesh.verts[a] - mesh.verts[b], axis=1) > bound
     near = np.flatnonzero(~far)
     open_ = near[greedy_path_lengths(mesh, a[near], b[near], bound[near]) > bound[near]]
-    floor = float(np.min(at_least[open_], initial=np.inf)) if at_least is not None and open_.size else 0.0
-    for limit in _search_limits(mesh, bound[open_], floor):
-        distance = graph_distances_between(mesh, a[open_], b[open_], limit)
-        decided = (distance <= bound[open_]) | (bound[open_] <= limit)
-        far[open_[decided]] = distance[decided] > bound[open_[decided]]
-        open_ = open_[~decided]
+    at_least = None if at_least is None else at_least[open_]
+    far[open_] = distances_within(mesh, a[open_], b[open_], bound[open_], at_least) > bound[open_]
     return far
 
 
-def distances_within(mesh: Mesh, a: np.ndarray, b: np.ndarray, bound: np.ndarray) -> np.ndarray:
+def distances_within(
+    mesh: Mesh, a: np.ndarray, b: np.ndarray, bound: np.ndarray, at_least: np.ndarray | None = None
+) -> np.ndarray:
     """Shortest edge-graph distance from ``a[n]`` to ``b[n]`` where at most ``bound[n]``, else inf.
 
-    :func:`graph_distances_between` with a bound per pair, searched as :func:`farther_than`
-    searches (a few edges first, doubling): each pair costs the search its own distance needs.
+    :func:`graph_distances_between` with a bound per pair, searched a few edges far first and
+    doubling (:func:`_search_limits`): each pair costs the search its own distance needs.
 
     Parameters
     ----------
     mesh : Mesh
     a, b : np.ndarray, shape (N,), int
     bound : np.ndarray, shape (N,) (or a float)
+    at_least : np.ndarray, shape (N,), optional
+        What the caller knows the distances to be at least: searches shorter than all of them
+        cannot settle a pair and are skipped.
 
     Returns
     -------
@@ -227,7 +241,8 @@ def distances_within(mesh: Mesh, a: np.ndarray, b: np.ndarray, bound: np.ndarray
     bound = np.broadcast_to(np.asarray(bound, dtype=np.float64), a.shape)
     out = np.full(len(a), np.inf)
     open_ = np.flatnonzero(np.linalg.norm(mesh.verts[a] - mesh.verts[b], axis=1) <= bound)
-    for limit in _search_limits(mesh, bound[open_]):
+    floor = 0.0 if at_least is None or not open_.size else float(at_least[open_].min())
+    for limit in _search_limits(mesh, bound[open_], floor):
         distance = graph_distances_between(mesh, a[open_], b[open_], limit)
         found = np.isfinite(distance)
         out[open_[found]] = distance[found]

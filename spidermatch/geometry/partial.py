@@ -510,8 +510,8 @@ def whole_reason(source: Mesh, target: Mesh, top_x: Topology, top_y: Topology) -
     """Why a pair is matched as two whole shapes: both the same, small holes tolerated (named)."""
     if top_x.open_boundaries:  # cut loops on both (as many): parts of the same extent, or not
         return (
-            f"{source.name} is {top_x} and {target.name} {top_y}: as many cut loops (boundaries that "
-            "are not where a scanner saw nothing) on each, so both are matched as whole shapes of that topology"
+            f"{source.name} is {top_x} and {target.name} {top_y}: as many cut loops (boundaries that are "
+            "not where a scanner saw nothing) on each, so both are matched as whole shapes of that topology"
         )
     if not (top_x.small_holes or top_y.small_holes):  # then the two topologies are equal
         return f"both meshes are {top_x}"
