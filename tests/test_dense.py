@@ -434,3 +434,31 @@ def test_tear_counts_of_every_choice_are_those_of_the_exact_distances_on_a_noisy
     valid = choices.valid
     np.testing.assert_array_equal(counts[valid], expected[valid])
     assert 0 < counts[valid].mean() < 5  # some edges torn, most not
+
+
+@pytest.mark.parametrize("scale, shift", [(1.0, 0.0), (1000.0, 2500.0)])
+def test_flip_counts_of_every_choice_are_those_of_the_trial_triangles(scale, shift):
+    """Each choice's count as :func:`flipped_triangles` gives it on the assembled trial triangles,
+    also in millimetres far from the origin (the normals are formed near the member)."""
+    import spidermatch.dense.unfold as unfold
+
+    clean = make_creature(1200, seed=7).mesh
+    rng = np.random.default_rng(7)
+    edge = float(np.median(clean.edge_lengths))
+    target = clean.with_positions(
+        (clean.verts + rng.normal(scale=0.5 * edge, size=clean.verts.shape)) * scale + shift
+    )
+    context = unfold._Rounding.between(clean, target)
+    rings = unfold.vertex_rings(target)
+    vertex = rings[np.arange(target.n_verts), rng.integers(0, 4, size=target.n_verts)]
+    members = unfold.independent_groups(np.arange(clean.n_verts), clean.edges, clean.n_verts)[0]
+    choices = unfold._TwoRings.around(target, rings, vertex[members], context.target_degree)
+    counts = unfold._flip_counts(context, vertex, members, choices.vertex)
+    expected = np.zeros_like(counts)
+    for row, member in enumerate(members):
+        faces = clean.faces[np.any(clean.faces == member, axis=1)]
+        for column, choice in enumerate(choices.vertex[row]):
+            trial = np.where(faces == member, choice, vertex[faces])
+            expected[row, column] = unfold.flipped_triangles(trial, target, context.normals).sum()
+    np.testing.assert_array_equal(counts[choices.valid], expected[choices.valid])
+    assert 0.2 < counts[choices.valid].mean() < 3  # flips found, not everywhere
