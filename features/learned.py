@@ -40,6 +40,10 @@ from spidermatch.geometry.partial import fitted_scale
 
 logger = logging.getLogger(__name__)
 
+ANNOUNCED_VERTICES = 10_000
+"""Meshes of at least this many vertices are announced before their learned features: at 20 000
+vertices the spectral operators and the network take about half a minute without other output."""
+
 CHECKPOINT_FORMAT = "spidermatch-diffusionnet"
 CHECKPOINT_VERSION = 1
 REQUIRED_KEYS = ("format", "version", "config", "step", "model")
@@ -443,6 +447,14 @@ class LearnedExtractor:
         return probe_input(mesh, self.config, self.adapt_faces, self.use_cache)
 
     def _features(self, network: DiffusionNet, mesh: Mesh) -> np.ndarray:
+        if mesh.n_verts >= ANNOUNCED_VERTICES:
+            search = "" if self.orientation is None else ", with the orientation search"
+            logger.info(
+                "%s: learned features of its %d vertices (the Laplacian's eigenvectors, then the network%s)",
+                mesh.name,
+                mesh.n_verts,
+                search,
+            )
         shape = prepare_shape(mesh, self.config, use_cache=self.use_cache)
         _, features = self._oriented(network, shape, mesh)
         return normalise_rows(features.double().numpy())

@@ -194,6 +194,19 @@ def test_learned_extractor_features(tmp_path, creature):
     assert np.allclose(np.linalg.norm(features, axis=1), 1.0)
 
 
+def test_a_large_mesh_is_announced_before_its_learned_features(tmp_path, creature, monkeypatch, caplog):
+    import features.learned as learned
+
+    _save_checkpoint(tmp_path / "a.pt")
+    extractor = LearnedExtractor(str(tmp_path / "a.pt"), n_eig=30, use_cache=False)
+    with caplog.at_level("INFO", logger="features.learned"):
+        extractor(creature)
+        assert "learned features of its" not in caplog.text  # a small mesh: nothing to wait for
+        monkeypatch.setattr(learned, "ANNOUNCED_VERTICES", creature.n_verts)
+        extractor(creature)
+    assert f"learned features of its {creature.n_verts} vertices" in caplog.text
+
+
 def test_learned_extractor_adaptation_leaves_network_unchanged(tmp_path, creature):
     _save_checkpoint(tmp_path / "a.pt")
     other = make_creature(n_verts=300, seed=4).mesh
