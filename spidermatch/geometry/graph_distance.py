@@ -196,8 +196,7 @@ def farther_than(
     a, b : np.ndarray, shape (N,), int
     bound : np.ndarray, shape (N,) (or a float)
     at_least : np.ndarray, shape (N,), optional
-        What the caller knows the distances to be at least: searches shorter than all of them
-        cannot settle a pair and are skipped.
+        Known lower bounds of the distances (:func:`distances_within`).
 
     Returns
     -------
