@@ -249,14 +249,31 @@ class MatchResult:
                 else "raise solver.time_limit"
             )
             raise NoSolutionError(
-                f"the solver stopped without any solution ({self.solve.message}) after "
-                f"{self.solve.wall_time:.0f} s: {remedy}, or match at a lower resolution "
-                f"(this run: {self.graph.n_layers} curve positions x {self.graph.n_target} target vertices)"
+                f"the solver stopped without any solution after {self.solve.wall_time:.0f} s"
+                f"{why_no_solution(self.solve.message)}: {remedy}, or match at a lower resolution "
+                f"(this run: {self.graph.n_layers} curve positions x {self.graph.n_target} target vertices; "
+                f"the solver said: {self.solve.message})"
             )
         if status == "error" or self.low_map is None:
             raise SolverFailure(f"the solver failed: {self.solve.message}")
         if self.check is not None and not self.check.ok:
             raise SolverFailure("the solution fails the independent check: " + "; ".join(self.check.problems))
+
+
+def why_no_solution(solver_message: str) -> str:
+    """What a solver's message of a run without a solution means for the user ("" if nothing to add)."""
+    if "detached cycles" in solver_message:
+        return (
+            ": the cheapest matchings it found laid the source's curve onto the target as several "
+            "separate loops, not one closed path, and no single closed path was found in the time left"
+        )
+    if "LP relaxation not solved" in solver_message:
+        return (
+            ": it did not finish even the relaxation that bounds the cost from below; this happens at a "
+            "resolution too high for the time, and on shapes with many symmetries (a sphere, a cylinder), "
+            "where many matchings cost the same and the features cannot tell the vertices apart"
+        )
+    return ""
 
 
 @contextmanager

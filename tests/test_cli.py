@@ -84,6 +84,19 @@ def test_time_limit_without_solution_exits_non_zero(tmp_path):
     else:
         assert code == 4 and result["status"] == "no_solution" and "stopped" in result["error"]
         assert "raise solver.time_limit" in result["error"]  # and says what to do
+        assert "the solver said:" in result["error"]  # its own words last, after the user's
+
+
+def test_no_solution_messages_say_in_plain_words_what_the_solver_ran_into():
+    from spidermatch.pipeline import why_no_solution
+
+    cut = why_no_solution(
+        "stopped early (on request, or to leave time for the repair); detached cycles cut off"
+    )
+    assert "separate loops, not one closed path" in cut
+    relaxation = why_no_solution("LP relaxation not solved: Time limit reached")
+    assert "symmetries" in relaxation and "resolution" in relaxation
+    assert why_no_solution("Time limit reached") == ""
 
 
 def test_learned_features_in_match(tmp_path, tiny_checkpoint):
