@@ -335,8 +335,8 @@ def _chunks_by_width(context: _Rounding, group: np.ndarray, start: np.ndarray) -
 
     A member weighs at most (1 + its start's degree) x (1 + its start's neighbours' largest
     degree) choices against its faces or neighbours. Tables padded to the widest member of a
-    whole group cost, on a mesh with a few vertices of degree 60 (faces split at their
-    centroids), a hundred times the work of a regular one: members are sorted by that count
+    whole group (65 x 65 two-ring entries on a mesh whose faces were split at their centroids,
+    against 7 x 7 for a regular vertex) cost most of the work there: members are sorted by that count
     and each chunk is as wide as its own widest member, with at most :data:`CHOICE_CELLS` cells.
     """
     degree = context.target_degree
@@ -398,8 +398,9 @@ def _flip_counts(
     A face's image with the member's corner at c and its other corners u, w (in the face's
     order from the member's) has the normal (u - c) x (w - c) = u x w + c x (u - w): per face
     one vector and one product with each choice, instead of each trial triangle put together
-    (on a mesh of needle triangles most of the rounding's time). Positions are taken from the
-    member's start vertex, so that the terms stay as small as the triangles. As
+    (on a mesh of needle triangles most of the rounding's time). Positions are taken from one
+    of the member's choices (near its triangles), so that the terms stay as small as the
+    triangles whatever the coordinates' origin and unit. As
     :func:`flipped_triangles`: degenerate (no area) is not flipped.
     """
     around = context.around[members][:, : max(1, int(context.source_face_count[members].max()))]  # (M, f)
