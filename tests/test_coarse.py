@@ -116,3 +116,28 @@ def test_rings_and_label_tables_cover_their_vertices():
     for face_index, corners in enumerate(full.faces):
         for label in set(labels[corners]):
             assert face_index in table[label]
+
+
+def test_closest_points_near_their_rings_are_the_same_built_a_block_at_a_time(monkeypatch):
+    """On a mesh with vertices of high degree the candidate table is built in blocks of points:
+    the same faces and coordinates as from the whole table at once."""
+    import spidermatch.geometry.coarse as coarse
+    from spidermatch.data.synthetic import centroid_split, make_creature
+    from spidermatch.geometry.mesh import Mesh
+
+    mesh = make_creature(600, seed=2).mesh
+    verts, faces = mesh.verts, mesh.faces
+    chosen = np.arange(len(faces)) < len(faces) // 3
+    for _ in range(2):
+        verts, faces, chosen = centroid_split(verts, faces, chosen)
+    mesh = Mesh(verts, faces)
+    rng = np.random.default_rng(2)
+    vertices = rng.integers(mesh.n_verts, size=500)
+    points = mesh.verts[vertices] + rng.normal(scale=0.01, size=(500, 3))
+    whole = closest_triangle_points(
+        mesh.verts, mesh.faces, points, candidates=coarse.ring_faces(mesh, vertices)
+    )
+    monkeypatch.setattr(coarse, "RING_FACE_CELLS", 1)  # one point per block
+    in_blocks = coarse.closest_points_near(mesh, points, vertices)
+    np.testing.assert_array_equal(in_blocks[0], whole[0])
+    np.testing.assert_array_equal(in_blocks[1], whole[1])

@@ -68,12 +68,11 @@ from spidermatch.dense.maps import DenseMap, InverseMap, inverse_map
 from spidermatch.dense.registration import arap_system, fit
 from spidermatch.dense.settings import DenseSettings
 from spidermatch.dense.unfold import unfolded_vertices
-from spidermatch.geometry.coarse import ring_faces
+from spidermatch.geometry.coarse import closest_points_near
 from spidermatch.geometry.graph_distance import farther_than
 from spidermatch.geometry.mesh import Mesh, mean_incident_edge_length
 from spidermatch.geometry.remesh import Decimated
 from spidermatch.geometry.surface import (
-    closest_triangle_points,
     nearest_corner,
     surface_positions,
     vertex_points,
@@ -327,9 +326,7 @@ def deformed_points(
         matches = feature_refined_vertices(target, points, radius * local_edge, *features, searched)
         fitted = fit(system, target.verts[matches], points, ROTATION_ROUNDS)
         anchors = projection_anchors(target, matches, fitted, PROJECTION_REACH * radius * local_edge)
-        face, bary = closest_triangle_points(
-            target.verts, target.faces, fitted, candidates=ring_faces(target, anchors)
-        )
+        face, bary = closest_points_near(target, fitted, anchors)
         points = surface_positions(target, face, bary)
         radius = max(radius * RADIUS_SHRINK, LEAST_RADIUS)
         if progress is not None:
@@ -386,8 +383,7 @@ def smoothed(dense: DenseMap, source: Mesh, target: Mesh, fixed: np.ndarray, rou
         points[fixed] = anchored
     # Each point may only land near where it started (its vertex's two rings of faces): a
     # free projection jumps to another body part where two parts nearly touch.
-    candidates = ring_faces(target, dense.vertex)
-    face, bary = closest_triangle_points(target.verts, target.faces, points, candidates=candidates)
+    face, bary = closest_points_near(target, points, dense.vertex)
     return DenseMap(nearest_corner(target, face, bary), face, bary, dense.method)
 
 
