@@ -302,8 +302,8 @@ def deformed_points(
     settings : DenseSettings
     rest_scale : float
         Factor of the source's rest lengths (to the target's unit).
-    progress : tqdm, optional
-        Advanced by one after each round.
+    progress : _StepBar, optional
+        Its ``update()`` is called after each round (one step of the dense stage's bar).
 
     Returns
     -------
