@@ -134,8 +134,7 @@ def coarse_tear(target: Mesh) -> float:
     sqrt(area)), so with that distance every edge tears, the identity's too (0.98 on a mesh
     matched to itself at 300 faces). Never below the dense maps' distance.
     """
-    median_edge = float(np.median(target.edge_lengths))
-    return max(TEAR_THRESHOLD * float(np.sqrt(target.area)), COARSE_TEAR_EDGES * median_edge)
+    return max(TEAR_THRESHOLD * float(np.sqrt(target.area)), COARSE_TEAR_EDGES * target.median_edge_length)
 
 
 def distortion(source: Mesh, target: Mesh, vertex_map: np.ndarray, seed: int = 0) -> float:

@@ -15,7 +15,12 @@ from scipy.sparse.csgraph import dijkstra
 
 from spidermatch.geometry.mesh import Mesh
 from spidermatch.geometry.remesh import Decimated
-from spidermatch.geometry.surface import closest_triangle_points, face_table, padded_rows, vertex_rings
+from spidermatch.geometry.surface import (
+    closest_triangle_points,
+    padded_rows,
+    vertex_face_table,
+    vertex_rings,
+)
 
 
 def coarse_labels(full: Mesh, low: Decimated) -> np.ndarray:
@@ -47,7 +52,7 @@ def coarse_labels(full: Mesh, low: Decimated) -> np.ndarray:
 
 def ring_faces(mesh: Mesh, vertices: np.ndarray) -> np.ndarray:
     """Faces around each given vertex and around its neighbours, shape (N, C), padded with -1."""
-    around = face_table(mesh.faces, mesh.n_verts)[vertex_rings(mesh)[vertices]]
+    around = vertex_face_table(mesh)[vertex_rings(mesh)[vertices]]
     return around.reshape(len(vertices), -1)
 
 
@@ -79,14 +84,12 @@ def closest_points_near(
     bary : np.ndarray, shape (N, 3)
 
     """
-    table, rings = face_table(mesh.faces, mesh.n_verts), vertex_rings(mesh)
-    step = max(1, RING_FACE_CELLS // (rings.shape[1] * table.shape[1]))
+    step = max(1, RING_FACE_CELLS // (vertex_rings(mesh).shape[1] * vertex_face_table(mesh).shape[1]))
     face, bary = np.empty(len(points), dtype=np.int64), np.empty((len(points), 3))
     for begin in range(0, len(points), step):
         rows = slice(begin, begin + step)
-        candidates = table[rings[vertices[rows]]].reshape(len(points[rows]), -1)
         face[rows], bary[rows] = closest_triangle_points(
-            mesh.verts, mesh.faces, points[rows], clip=clip, candidates=candidates
+            mesh.verts, mesh.faces, points[rows], clip=clip, candidates=ring_faces(mesh, vertices[rows])
         )
     return face, bary
 

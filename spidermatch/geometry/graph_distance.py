@@ -263,7 +263,7 @@ def _search_limits(mesh: Mesh, bounds: np.ndarray, floor: float = 0.0) -> list[f
     if not bounds.size:
         return []
     largest = float(bounds.max())
-    limit = max(FIRST_SEARCH_EDGES * float(np.median(mesh.edge_lengths)), floor)
+    limit = max(FIRST_SEARCH_EDGES * mesh.median_edge_length, floor)
     limits = []
     while limit < largest:
         limits.append(limit)

@@ -105,6 +105,11 @@ class Mesh:
         )
 
     @property
+    def median_edge_length(self) -> float:
+        """The median of :attr:`edge_lengths`."""
+        return self.cached("median_edge_length", lambda: float(np.median(self.edge_lengths)))
+
+    @property
     def edges(self) -> np.ndarray:
         """Unique undirected mesh edges, shape (E, 2), with ``edges[:, 0] < edges[:, 1]``."""
         return self.cached("edges", lambda: unique_edges(self.faces))

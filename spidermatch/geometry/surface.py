@@ -179,8 +179,18 @@ def _candidate_faces(
 
 
 def vertex_face_table(mesh: Mesh) -> np.ndarray:
-    """Faces around each vertex, shape (V, max valence), padded with -1."""
-    return face_table(mesh.faces, mesh.n_verts)
+    """Faces around each vertex, shape (V, max valence), padded with -1.
+
+    Kept with the mesh (read-only), like its rings: the projections near a vertex's rings ask
+    for it a block of points at a time.
+    """
+
+    def table() -> np.ndarray:
+        faces_around = face_table(mesh.faces, mesh.n_verts)
+        faces_around.flags.writeable = False
+        return faces_around
+
+    return mesh.cached("vertex_face_table", table)
 
 
 def face_table(faces: np.ndarray, n_verts: int) -> np.ndarray:
