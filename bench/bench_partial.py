@@ -205,7 +205,7 @@ def run_pair(part_name: str, parts: Path, folder: ShapeFolder, target_name: str,
     errors = pointwise_geodesic_errors(target.mesh, result.dense_map[sources], truth_images)
     row["dense_error"] = round(float(errors.mean()), 4)
     truth = true_overlap(target.mesh, target.corr, kept_rows)
-    covered = result.dense.covered
+    covered = result.target_covered
     if covered is None:  # the whole mode says nothing of coverage: every image vertex, as the map gives it
         covered = np.zeros(target.mesh.n_verts, dtype=bool)
         covered[result.dense_map] = True
@@ -265,7 +265,7 @@ def run_overlap_pair(
     images = result.dense_map[pair.positions[0][wholes[0].corr[pair.shared]]]
     mapped = images >= 0
     row["overlap_mapped"] = round(float(mapped.mean()), 4)
-    row["iou"] = round(area_iou(meshes[1], result.dense.covered, pair.truths[1]), 4)
+    row["iou"] = round(area_iou(meshes[1], result.target_covered, pair.truths[1]), 4)
     if not mapped.any():  # the estimated overlap missed the true one: no error to measure
         return row
     # measured on the whole target shape, as the partial-to-full runs are

@@ -88,7 +88,7 @@ def presentation_rows(index: int, part_name: str, target_name: str, args, folder
         if result.dense_map is not None:
             errors = pointwise_geodesic_errors(run.target.mesh, result.dense_map[sources], truth_images)
             row["dense_error"] = round(float(errors.mean()), 4)
-            row["iou"] = round(area_iou(run.target.mesh, result.dense.covered, truth_region), 4)
+            row["iou"] = round(area_iou(run.target.mesh, result.target_covered, truth_region), 4)
         if result.quality:
             row["distortion"] = result.quality["distortion"]
         print(json.dumps(row), flush=True)

@@ -102,6 +102,10 @@ class Matching:
         The source vertices that were matched, where not all of them were: with
         ``partial="both"`` those estimated to have a partner on the target, with
         ``repair=True`` those of the largest clean piece (both, with both). None otherwise.
+    target_covered : np.ndarray, shape (V_tgt,), bool, or None
+        The target vertices the dense map covers, where a partial mode matched a part
+        (``dense.covered`` told in the target's own vertices: a repeated vertex shares its
+        welded vertex's entry, a vertex a repair cut away is False); None otherwise.
     matched_meshes : tuple of Mesh, or None
         The full-resolution (source, target) as matched: the meshes as given, or welded, cut to
         their repaired pieces or to the source's overlap, in the indices of ``dense`` and
@@ -122,6 +126,7 @@ class Matching:
     timings: dict = field(default_factory=dict)
     details: object = field(default=None, repr=False)
     source_overlap: np.ndarray | None = field(default=None, repr=False)
+    target_covered: np.ndarray | None = field(default=None, repr=False)
     matched_meshes: tuple | None = field(default=None, repr=False)
     as_given: bool = field(default=True, repr=False)
 
@@ -564,7 +569,7 @@ def match(
     if repaired is not None:
         matching = on_whole_source(matching, repaired.piece, repaired.n_original)
     if target_repaired is not None:
-        matching = on_whole_target(matching, target_repaired.piece)
+        matching = on_whole_target(matching, target_repaired.piece, target_repaired.n_original)
     return on_file_vertices(matching, source_weld, target_weld)
 
 
@@ -585,10 +590,12 @@ def on_file_vertices(matching: Matching, source_weld: Weld | None, target_weld: 
     """``matching`` told in the vertices of meshes given with repeated vertices (welded for matching).
 
     ``matches`` name each welded vertex's first file vertex; ``dense_map`` and
-    ``source_overlap`` get one entry per vertex of the source file (a repeated vertex those of
-    the vertex it was welded into); ``dense`` and ``details`` stay in the welded meshes' indices.
+    ``source_overlap`` get one entry per vertex of the source file, ``target_covered`` one per
+    vertex of the target file (a repeated vertex those of the vertex it was welded into);
+    ``dense`` and ``details`` stay in the welded meshes' indices.
     """
     matches, dense_map, overlap = matching.matches, matching.dense_map, matching.source_overlap
+    covered = matching.target_covered
     if source_weld is not None:
         matches = (
             None if matches is None else np.column_stack([source_weld.file_ids(matches[:, 0]), matches[:, 1]])
@@ -600,7 +607,10 @@ def on_file_vertices(matching: Matching, source_weld: Weld | None, target_weld: 
             None if matches is None else np.column_stack([matches[:, 0], target_weld.file_ids(matches[:, 1])])
         )
         dense_map = None if dense_map is None else target_weld.file_ids(dense_map)
-    return dataclasses.replace(matching, matches=matches, dense_map=dense_map, source_overlap=overlap)
+        covered = None if covered is None else target_weld.file_values(covered)
+    return dataclasses.replace(
+        matching, matches=matches, dense_map=dense_map, source_overlap=overlap, target_covered=covered
+    )
 
 
 def _matched_rows(features, weld: Weld | None, repaired: Repair | None):
@@ -628,18 +638,21 @@ def _rows_kept(features, n_given: int, kept: np.ndarray, name: str) -> np.ndarra
     return rows[kept]
 
 
-def on_whole_target(matching: Matching, piece: PartialShape) -> Matching:
+def on_whole_target(matching: Matching, piece: PartialShape, n_target: int) -> Matching:
     """``matching`` onto a repaired target's ``piece``, its target vertices told in the target's own indices.
 
-    ``matches[:, 1]`` and ``dense_map`` name the target's own vertices; ``dense`` and ``details``
-    stay in the piece's.
+    ``matches[:, 1]`` and ``dense_map`` name the target's own vertices, ``target_covered`` has one
+    entry per target vertex (False off the piece); ``dense`` and ``details`` stay in the piece's.
     """
-    matches, dense_map = matching.matches, matching.dense_map
+    matches, dense_map, covered = matching.matches, matching.dense_map, matching.target_covered
     if matches is not None:
         matches = np.column_stack([matches[:, 0], piece.to_original[matches[:, 1]]])
     if dense_map is not None:
         dense_map = ids_or_missing(piece.to_original, dense_map)
-    return dataclasses.replace(matching, matches=matches, dense_map=dense_map)
+    if covered is not None:
+        covered = np.zeros(n_target, dtype=bool)
+        covered[piece.to_original] = matching.target_covered
+    return dataclasses.replace(matching, matches=matches, dense_map=dense_map, target_covered=covered)
 
 
 def mesh_of(shape, role: str, repair: bool) -> tuple[Mesh, Repair | None, Weld | None]:
@@ -793,6 +806,7 @@ def _matching(result, feature_name: str, resolution: int, timings: dict) -> Matc
     summary = result.solve.summary()
     matches = result.full_pairs.astype(np.int64) if result.low_map is not None and result.check.ok else None
     dense = result.dense_map if matches is not None else None
+    covered = None if dense is None or result.dense is None else result.dense.covered
     if matches is not None and not result.solve.proven_optimal:
         logger.warning(
             "the solver stopped early: this matching is NOT proven optimal (gap %s)", summary["gap"]
@@ -808,4 +822,5 @@ def _matching(result, feature_name: str, resolution: int, timings: dict) -> Matc
         features=feature_name,
         timings=timings,
         details=result,
+        target_covered=None if covered is None else np.asarray(covered, dtype=bool),
     )

@@ -207,7 +207,28 @@ def test_the_partial_mode_recovers_the_identity_on_the_kept_part(creature):
     dense_error = np.linalg.norm(creature.verts[result.dense_map] - part.mesh.verts, axis=1)
     assert np.mean(sparse_error) < 0.5 * mean_edge_length(result.details.target.mesh)
     assert np.mean(dense_error) < 0.5 * mean_edge_length(creature)
-    covered = result.dense.covered
+    covered = result.target_covered
+    assert np.array_equal(covered, result.dense.covered)  # the target as given was matched
+    kept = np.zeros(creature.n_verts, dtype=bool)
+    kept[part.to_original] = True
+    assert (covered & kept).sum() / (covered | kept).sum() > 0.85
+
+
+def test_the_covered_target_names_the_vertices_of_a_target_given_as_a_soup(creature):
+    """A target whose faces each have their own corners (an STL file) is matched welded; the
+    covered region is told per corner, each corner as its vertex."""
+    part = plane_cut(creature, np.array([0.0, 1.0, 0.3]), 0.6, "part")
+    corners = creature.faces.reshape(-1)
+    soup = Mesh(creature.verts[corners], np.arange(corners.size).reshape(-1, 3), "soup.stl")
+    feat_whole = WKSExtractor()(creature)
+    result = spidermatch.match(
+        part.mesh, soup, features=(feat_whole[part.to_original], feat_whole[corners]), resolution=200
+    )
+    assert result.details.pair.mode == "partial" and result.target_covered.shape == (soup.n_verts,)
+    assert result.dense.covered.shape == (creature.n_verts,)  # the welded target's, as matched
+    covered = np.zeros(creature.n_verts, dtype=bool)
+    covered[corners] = result.target_covered
+    assert np.array_equal(covered[corners], result.target_covered)  # one value per vertex
     kept = np.zeros(creature.n_verts, dtype=bool)
     kept[part.to_original] = True
     assert (covered & kept).sum() / (covered | kept).sum() > 0.85
