@@ -22,7 +22,7 @@ from spidermatch import defaults, shutdown
 from spidermatch.dense.densify import densify
 from spidermatch.dense.maps import DenseMap, on_given_meshes
 from spidermatch.dense.settings import DenseSettings
-from spidermatch.eval.quality import assess, dense_figures, remarks, with_dense_figures
+from spidermatch.eval.quality import assess, covered_share, dense_figures, remarks, with_dense_figures
 from spidermatch.geometry.holes import (
     ClosedCopy,
     closed_copy,
@@ -949,8 +949,13 @@ def _log_quality(quality: dict) -> None:
     log("quality: %s%s", quality["verdict"], "".join(f"; {r}" for r in remarks(quality)))
 
 
-def _judged_with_dense_map(result: MatchResult, source: Mesh, target: Mesh, dense: DenseMap) -> None:
+def _judged_with_dense_map(
+    result: MatchResult, source: Mesh, target: Mesh, dense: DenseMap, covered_area: float | None = None
+) -> None:
     """``result.quality`` judged again with the figures of ``dense`` (``source`` to ``target``), and logged.
+
+    ``covered_area``: a partial map's covered target area over the source's
+    (:func:`spidermatch.eval.quality.covered_share`).
 
     Should those figures fail (they compute geodesics on both meshes), the certified map's
     verdict stands, said in the log.
@@ -959,7 +964,7 @@ def _judged_with_dense_map(result: MatchResult, source: Mesh, target: Mesh, dens
         return
     before = result.quality
     try:
-        figures = dense_figures(source, target, dense)
+        figures = dense_figures(source, target, dense, covered_area)
     except Exception as error:  # an extra figure must not cost the matching
         logger.warning(
             "the dense map's quality figures failed (%s): the certified map's verdict stands", error
@@ -970,14 +975,15 @@ def _judged_with_dense_map(result: MatchResult, source: Mesh, target: Mesh, dens
     result.quality = with_dense_figures(before, figures)
     quality = result.quality
     if len(quality["reasons"]) < len(before["reasons"]):  # a symptom the dense map does not show
-        distortion = quality["dense_distortion"]
+        distortion, covered = quality["dense_distortion"], quality.get("dense_covered")
         logger.info(
             "the certified map looked %s (%s); its dense map does not: %.0f%% of its triangles face against "
-            "the target, %s of its sampled distances change by more than half (decimation noise)",
+            "the target, %s of its sampled distances change by more than half%s (decimation noise)",
             before["verdict"],
             "; ".join(before["reasons"]),
             100 * quality["dense_mirror"],
             "n/a" if distortion is None else f"{distortion:.0%}",
+            "" if covered is None else f", it covers {covered:.0%} of the source's area on the target",
         )
     _log_quality(quality)
 
@@ -1060,7 +1066,12 @@ def add_dense_map(
             whole = target.centred()
             covered = covered_target(whole, result.dense.points(whole), mean_edge_length(source))
             result.dense = dataclasses.replace(result.dense, covered=covered)
-    _judged_with_dense_map(result, *matched, dense)  # on the meshes matched (small holes closed)
+    covered_area = (
+        None if result.dense.covered is None else covered_share(source, target, result.dense.covered)
+    )
+    _judged_with_dense_map(
+        result, *matched, dense, covered_area
+    )  # on the meshes matched (small holes closed)
 
 
 def _read_solution(result: MatchResult, families: tuple = FAMILIES) -> None:

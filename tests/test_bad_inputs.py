@@ -871,11 +871,14 @@ def test_distortion_counts_distances_a_map_changes_whatever_the_unit():
     scrambled_on_holed = inside[::-1].copy()
     holed_verdict = assess(holed, holed, scrambled_on_holed, 1e-4)
     assert holed_verdict["distortion"] > 0.06 and holed_verdict["distortion_judged"] is False
-    holed_dense = DenseMap(scrambled_on_holed, *vertex_points(holed, scrambled_on_holed), "test")
-    assert dense_figures(holed, holed, holed_dense)["dense_distortion"] is None
     assert not any("geodesic" in r for r in holed_verdict["reasons"])
     # ... and a verdict there says what it cannot tell (a wrong partial=both map was called plausible)
     assert holed_verdict["unjudged"] and "not judged" in holed_verdict["unjudged"][0]
+    # the dense map's figure is measured around the boundaries and judged (tests/test_quality.py)
+    holed_dense = DenseMap(scrambled_on_holed, *vertex_points(holed, scrambled_on_holed), "test")
+    holed_figures = dense_figures(holed, holed, holed_dense)
+    assert holed_figures["dense_distortion_around_boundaries"] and holed_figures["dense_distortion"] > 0.1
+    assert with_dense_figures(holed_verdict, holed_figures)["unjudged"] == []
     assert assess(source, source, identity, 1e-4)["unjudged"] == []  # a closed target: all judged
     from spidermatch.cli.outputs import final_line
 

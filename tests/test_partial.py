@@ -291,6 +291,10 @@ def test_two_overlapping_parts_are_matched_on_their_overlap_only(creature):
     images = upper.mesh.verts[result.dense_map[both]]
     dense_error = np.linalg.norm(images - lower.mesh.verts[both], axis=1)
     assert np.mean(dense_error) < 0.5 * mean_edge_length(creature)
+    # judged on the target with a boundary, by the dense map (docs/partial.md, "Telling a wrong partial map")
+    quality = result.quality
+    assert quality["dense_distortion_around_boundaries"] and quality["dense_covered"] > 0.5
+    assert quality["verdict"] == "plausible" and quality["unjudged"] == [], quality
 
 
 def test_partial_both_accepts_only_its_three_names(creature):

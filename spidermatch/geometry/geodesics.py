@@ -36,6 +36,13 @@ class GeodesicDistances:
         distances[int(vertex)] = 0.0
         return np.maximum(distances, 0.0)
 
+    def from_set(self, vertices: np.ndarray) -> np.ndarray:
+        """Distance of every vertex to the nearest of ``vertices`` (S,), shape (V,); zero on them."""
+        vertices = np.unique(np.asarray(vertices, dtype=np.int64).reshape(-1))
+        distances = np.asarray(self._solver.compute_distance_multisource(vertices.tolist()), dtype=np.float64)
+        distances[vertices] = 0.0
+        return np.maximum(distances, 0.0)
+
     def from_vertices(self, vertices: np.ndarray, progress: bool = False) -> np.ndarray:
         """Distances from each of S vertices to all vertices.
 

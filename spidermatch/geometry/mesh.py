@@ -776,6 +776,11 @@ def boundary_loops(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return edges, labels[ends[:, 0]].astype(np.int64)
 
 
+def boundary_vertices(faces: np.ndarray) -> np.ndarray:
+    """Vertices on a boundary edge of manifold faces, sorted, shape (K,) int64 (empty if closed)."""
+    return np.unique(boundary_loops(faces)[0]).astype(np.int64)
+
+
 def loop_spans(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Area each boundary loop spans (the length of its vector area), shape (L,).
 

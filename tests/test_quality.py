@@ -1,0 +1,94 @@
+"""The verdict's distortion figure on meshes with boundaries (parts of one surface)."""
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+
+from spidermatch.dense.maps import DenseMap
+from spidermatch.eval.quality import (
+    OPEN_DENSE_DISTORTION_SUSPECT,
+    OPEN_TARGET_UNJUDGED,
+    assess,
+    dense_figures,
+    distortion,
+    judge,
+    with_dense_figures,
+)
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.surface import vertex_points
+
+SPHERE = trimesh.creation.icosphere(subdivisions=4)
+WHOLE_VERTS = SPHERE.vertices * [2.0, 1.0, 1.0]  # an elongated closed surface
+FACE_CENTRES = WHOLE_VERTS[SPHERE.faces].mean(axis=1)
+
+
+def _part(kept_faces: np.ndarray, name: str) -> Mesh:
+    """The whole surface's faces ``kept_faces`` (F,) bool as a mesh of their own."""
+    faces = SPHERE.faces[kept_faces]
+    used = np.unique(faces)
+    return Mesh(WHOLE_VERTS[used], np.searchsorted(used, faces), name)
+
+
+@pytest.fixture(scope="module")
+def parts():
+    """Two parts of the surface: one end cut off (the source), and a slit across the middle
+    that leaves a bridge (the target), so that target paths across the slit detour."""
+    source = _part(FACE_CENTRES[:, 0] < 1.5, "end cut off")
+    slit = (np.abs(FACE_CENTRES[:, 0]) < 0.12) & (FACE_CENTRES[:, 1] > -0.6)
+    target = _part(~slit, "slit")
+    right = cKDTree(target.verts).query(source.verts)[1]  # each point onto itself
+    order = np.argsort(source.verts[:, 0])
+    half = source.n_verts // 2
+    wrong = right.copy()
+    wrong[order[:half]] = right[order[::-1][:half]]  # one half laid onto the other end
+    return source, target, right, wrong
+
+
+def test_distances_around_a_target_s_boundaries_do_not_count_against_a_right_map(parts):
+    source, target, right, wrong = parts
+    # paths across the slit detour around it: compared as they are, a right map looks distorted
+    assert distortion(source, target, right) > 0.1
+    assert distortion(source, target, right, around_boundaries=True) == 0.0
+    assert distortion(source, target, wrong, around_boundaries=True) > 0.25
+
+
+def test_on_closed_meshes_the_bounded_figure_is_the_plain_one():
+    whole = Mesh(WHOLE_VERTS, SPHERE.faces, "whole")
+    order = np.argsort(whole.verts[:, 0])
+    scrambled = np.arange(whole.n_verts)
+    scrambled[order[: whole.n_verts // 2]] = order[::-1][: whole.n_verts // 2]
+    plain = distortion(whole, whole, scrambled)
+    assert plain > 0.2 and distortion(whole, whole, scrambled, around_boundaries=True) == plain
+
+
+def _verdict(source: Mesh, target: Mesh, vertex_map: np.ndarray) -> dict:
+    """The pipeline's verdict with the dense map's figures: a vertex map as both maps."""
+    dense = DenseMap(vertex_map, *vertex_points(target, vertex_map), "test")
+    return with_dense_figures(assess(source, target, vertex_map, 1e-4), dense_figures(source, target, dense))
+
+
+def test_a_target_with_boundaries_is_judged_by_the_dense_map_around_them(parts):
+    source, target, right, wrong = parts
+    before = assess(source, target, right, 1e-4)  # the certified map alone: not judged there
+    assert before["unjudged"] == [OPEN_TARGET_UNJUDGED]
+    plausible = _verdict(source, target, right)
+    assert plausible["dense_distortion_around_boundaries"] is True
+    assert plausible["dense_distortion"] <= OPEN_DENSE_DISTORTION_SUSPECT
+    assert plausible["verdict"] == "plausible" and plausible["unjudged"] == []
+    suspect = _verdict(source, target, wrong)
+    assert suspect["verdict"] == "suspect"
+    assert any("even where the boundaries could explain it" in reason for reason in suspect["reasons"])
+
+
+def test_on_a_target_with_boundaries_a_collapse_must_show_in_the_covered_area():
+    """Right partial=both maps had 29-59 % distinct targets at low resolution; what their dense
+    maps cover tells them from stay paths."""
+    figures = {"mirror": 0.1, "distinct": 0.35, "gap": 1e-4, "distortion": 0.0, "distortion_judged": False}
+    spread = judge({**figures, "dense_mirror": 0.1, "dense_distortion": 0.0, "dense_covered": 0.8})
+    assert spread["verdict"] == "plausible"
+    stay = judge({**figures, "dense_mirror": 0.1, "dense_distortion": 0.0, "dense_covered": 0.05})
+    assert (
+        stay["verdict"] == "suspect" and "the dense map covers 5% of the source's area" in stay["reasons"][0]
+    )
+    assert judge(figures)["verdict"] == "suspect"  # no dense map: the certified map's figure alone
