@@ -262,10 +262,12 @@ def run_overlap_pair(
         row["source_iou"] = round(area_iou(meshes[0], result.source_overlap, pair.truths[0]), 4)
     if result.dense_map is None:
         return row
+    row["iou"] = round(area_iou(meshes[1], result.target_covered, pair.truths[1]), 4)
+    if not pair.shared.any():  # parts that share nothing (--min-overlap 0): no share mapped, no error
+        return row
     images = result.dense_map[pair.positions[0][wholes[0].corr[pair.shared]]]
     mapped = images >= 0
     row["overlap_mapped"] = round(float(mapped.mean()), 4)
-    row["iou"] = round(area_iou(meshes[1], result.target_covered, pair.truths[1]), 4)
     if not mapped.any():  # the estimated overlap missed the true one: no error to measure
         return row
     # measured on the whole target shape, as the partial-to-full runs are
