@@ -81,14 +81,14 @@ def test_a_target_with_boundaries_is_judged_by_the_dense_map_around_them(parts):
     assert any("even where the boundaries could explain it" in reason for reason in suspect["reasons"])
 
 
-def test_on_a_target_with_boundaries_a_collapse_must_show_in_the_covered_area():
-    """Right partial=both maps had 29-59 % distinct targets at low resolution; what their dense
-    maps cover tells them from stay paths."""
+def test_few_distinct_targets_are_told_a_collapse_or_a_source_pressed_together_by_the_covered_area():
+    """On parts of FAUST_r, maps with few distinct targets that still cover much of the source's area
+    were mostly wrong overlaps (a piece without partner pressed together), not stay paths."""
     figures = {"mirror": 0.1, "distinct": 0.35, "gap": 1e-4, "distortion": 0.0, "distortion_judged": False}
-    spread = judge({**figures, "dense_mirror": 0.1, "dense_distortion": 0.0, "dense_covered": 0.8})
-    assert spread["verdict"] == "plausible"
-    stay = judge({**figures, "dense_mirror": 0.1, "dense_distortion": 0.0, "dense_covered": 0.05})
-    assert (
-        stay["verdict"] == "suspect" and "the dense map covers 5% of the source's area" in stay["reasons"][0]
-    )
-    assert judge(figures)["verdict"] == "suspect"  # no dense map: the certified map's figure alone
+    dense = {"dense_mirror": 0.1, "dense_distortion": 0.0, "dense_distortion_around_boundaries": True}
+    pressed = judge({**figures, **dense, "dense_covered": 0.8})
+    assert pressed["verdict"] == "suspect" and "pressed together" in pressed["reasons"][0]
+    stay = judge({**figures, **dense, "dense_covered": 0.05})
+    assert stay["verdict"] == "suspect"
+    assert "the dense map covers 5% of the source's area: the matching collapses" in stay["reasons"][0]
+    assert "(e.g. the trivial stay path)" in judge(figures)["reasons"][0]  # no dense map

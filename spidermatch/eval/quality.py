@@ -86,11 +86,13 @@ OPEN_DENSE_DISTORTION_SUSPECT = 0.005
 them (:func:`distortion`'s ``around_boundaries``), above which the map is called misplaced: right
 ``partial=both`` maps of FAUST_r parts reached 0.002, wrong ones 0-1 (docs/partial.md)."""
 
-DENSE_COVERED_SUSPECT = 0.3
+DENSE_COVERED_COLLAPSE = 0.3
 """Target area the dense map covers on a target with boundaries (``partial=both``), as a share of
-the matched source's area, below which a collapse the certified map shows (``distinct``) is
-confirmed: there right certified maps had only 29-59 % distinct targets, their dense maps covered
-0.54-1.1 of the source's area, stay paths 0.03-0.10."""
+the matched source's area, below which few distinct targets (``distinct``) are read as a collapse,
+above it as a source pressed together. Of 90 ``partial=both`` runs on FAUST_r parts, the 11 with
+fewer than 45 % distinct targets that covered 0.03-0.23 were all wrong (stay paths); the 40 that
+covered 0.35-1.19 were 31 wrong, 4 in between and 5 right maps (a piece much of which has no
+partner is pressed together; docs/partial.md), so both stay suspect, with their own reason."""
 
 DENSE_DISTORTION_MAX_VERTICES = 50_000
 """Meshes up to this size get ``dense_distortion`` (heat-method geodesics on both: about 1 s
@@ -266,7 +268,7 @@ def dense_figures(source: Mesh, target: Mesh, dense_map, covered_area: float | N
     each (else None), on a target with boundaries measured around them (:func:`distortion`'s
     ``around_boundaries``; ``dense_distortion_around_boundaries`` says so). On such a target a
     partial map's ``covered_area`` (:func:`covered_share`) becomes ``dense_covered``
-    (:data:`DENSE_COVERED_SUSPECT`); None elsewhere.
+    (:data:`DENSE_COVERED_COLLAPSE`); None elsewhere.
     """
     small = max(source.n_verts, target.n_verts) <= DENSE_DISTORTION_MAX_VERTICES
     open_target = topology(target).open_boundaries > 0
@@ -310,16 +312,9 @@ def judge(figures) -> dict:
             f"{figures['mirror']:.0%} of the image triangles face against the target{also}: "
             "likely a mirror image (left and right swapped) of the right map, at least in part"
         )
-    covered = figures.get("dense_covered")  # None: not a partial map, or no dense map
-    collapsed = figures["distinct"] < DISTINCT_SUSPECT and (
-        covered is None or covered < DENSE_COVERED_SUSPECT
-    )
-    if collapsed:  # then every distance shrinks: said once
-        also = "" if covered is None else f" (the dense map covers {covered:.0%} of the source's area)"
-        reasons.append(
-            f"only {figures['distinct']:.0%} of the matched target vertices are distinct{also}: the "
-            "matching collapses (e.g. the trivial stay path)"
-        )
+    collapsed = figures["distinct"] < DISTINCT_SUSPECT  # then every distance shrinks: said once
+    if collapsed:
+        reasons.append(_few_distinct_reason(figures["distinct"], figures.get("dense_covered")))
     judged = figures.get("distortion_judged", True) and not collapsed
     dense = figures.get("dense_distortion")
     distorted = (figures.get("distortion") or 0.0) > DISTORTION_SUSPECT  # None: not measured
@@ -342,6 +337,23 @@ def judge(figures) -> dict:
         reasons.append(f"the solver's gap {gap:.1%} is large: a much better matching may exist")
     unjudged = [] if judged or collapsed or judged_around_boundaries else [OPEN_TARGET_UNJUDGED]
     return {"verdict": "suspect" if reasons else "plausible", "reasons": reasons, "unjudged": unjudged}
+
+
+def _few_distinct_reason(distinct: float, covered: float | None) -> str:
+    """Why few distinct matched targets (``distinct``) make a map suspect.
+
+    ``covered``: the dense map's covered target area over the source's (None: not measured), see
+    :data:`DENSE_COVERED_COLLAPSE`.
+    """
+    told = f"only {distinct:.0%} of the matched target vertices are distinct"
+    if covered is None:
+        return f"{told}: the matching collapses (e.g. the trivial stay path)"
+    if covered < DENSE_COVERED_COLLAPSE:
+        return f"{told} and the dense map covers {covered:.0%} of the source's area: the matching collapses"
+    return (
+        f"{told}, the dense map covering {covered:.0%} of the source's area: much of the source is pressed "
+        "together, as where much of it has no partner on the target (a wrong overlap)"
+    )
 
 
 def remarks(quality: dict) -> list[str]:
