@@ -149,7 +149,11 @@ def test_dense_map_is_exposed_when_the_pipeline_has_one(from_paths):
     details = from_paths.details
     dense = np.arange(details.source.to_full.max() + 1)[::-1]
     with_dense = types.SimpleNamespace(
-        solve=details.solve, low_map=details.low_map, check=details.check, full_pairs=details.full_pairs
+        solve=details.solve,
+        low_map=details.low_map,
+        check=details.check,
+        full_pairs=details.full_pairs,
+        dense=None,
     )
     with_dense.dense_map = dense
     matching = api._matching(with_dense, "wks", RESOLUTION, {})
