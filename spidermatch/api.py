@@ -102,16 +102,16 @@ class Matching:
         The source vertices that were matched, where not all of them were: with
         ``partial="both"`` those estimated to have a partner on the target, with
         ``repair=True`` those of the largest clean piece (both, with both). None otherwise.
-    target_covered : np.ndarray, shape (V_tgt,), bool, or None
-        The target vertices the dense map covers, where a partial mode matched a part
-        (``dense.covered`` told in the target's own vertices: a repeated vertex shares its
-        welded vertex's entry, a vertex a repair cut away is False); None otherwise.
     matched_meshes : tuple of Mesh, or None
         The full-resolution (source, target) as matched: the meshes as given, or welded, cut to
         their repaired pieces or to the source's overlap, in the indices of ``dense`` and
         ``details``; :meth:`save_pictures` draws them.
     as_given : bool
         Whether ``matched_meshes`` are the meshes as given (nothing welded, repaired or cut).
+    target_covered : np.ndarray, shape (V_tgt,), bool, or None
+        The target vertices the dense map covers, where a partial mode matched a part
+        (``dense.covered`` told in the target's own vertices: a repeated vertex shares its
+        welded vertex's entry, a vertex a repair cut away is False); None otherwise.
 
     """
 
@@ -126,9 +126,9 @@ class Matching:
     timings: dict = field(default_factory=dict)
     details: object = field(default=None, repr=False)
     source_overlap: np.ndarray | None = field(default=None, repr=False)
-    target_covered: np.ndarray | None = field(default=None, repr=False)
     matched_meshes: tuple | None = field(default=None, repr=False)
     as_given: bool = field(default=True, repr=False)
+    target_covered: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def dense(self):

@@ -57,6 +57,7 @@ MATCHING_FIELDS = [
     "source_overlap",  # added with partial="both": a new field at the end keeps positional use working
     "matched_meshes",  # added with save_pictures, at the end likewise
     "as_given",
+    "target_covered",  # added for partial maps of welded or repaired targets, at the end likewise
 ]
 
 
