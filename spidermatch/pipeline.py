@@ -1066,12 +1066,10 @@ def add_dense_map(
             whole = target.centred()
             covered = covered_target(whole, result.dense.points(whole), mean_edge_length(source))
             result.dense = dataclasses.replace(result.dense, covered=covered)
-    covered_area = (
-        None if result.dense.covered is None else covered_share(source, target, result.dense.covered)
-    )
-    _judged_with_dense_map(
-        result, *matched, dense, covered_area
-    )  # on the meshes matched (small holes closed)
+    covered = result.dense.covered
+    covered_area = None if covered is None else covered_share(source, target, covered)
+    # judged on the meshes matched (small holes closed)
+    _judged_with_dense_map(result, *matched, dense, covered_area)
 
 
 def _read_solution(result: MatchResult, families: tuple = FAMILIES) -> None:

@@ -19,7 +19,9 @@ Mirror image (symmetric flip)
 Collapse
     A matching that sends many source vertices onto few target vertices (the trivial
     stay path, or costs that do not discriminate): ``distinct`` is the share of distinct
-    target vertices among the matches.
+    target vertices among the matches. On a target with boundaries the dense map's covered area
+    (``dense_covered``) tells a collapse from a source pressed together, most often a piece of
+    which much has no partner (a wrong overlap); both are suspect.
 Misplaced region
     A part of the source laid onto the wrong part of the target (a scan's torso onto a
     leg) keeps its triangles facing the right way and its targets distinct, but not its
@@ -302,7 +304,8 @@ def judge(figures) -> dict:
     """``verdict``, ``reasons`` and ``unjudged`` from :func:`assess`'s (and :func:`dense_figures`') figures.
 
     ``unjudged`` names what the figures cannot tell on this pair: a misplaced region on a target
-    with boundaries (``partial=both``, or two open scans matched as wholes).
+    with boundaries (``partial=both``, or two open scans matched as wholes) when the dense map's
+    figure was not measured around them.
     """
     reasons = []
     dense = figures.get("dense_mirror")  # None: no dense map
