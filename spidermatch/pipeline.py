@@ -975,15 +975,14 @@ def _judged_with_dense_map(
     result.quality = with_dense_figures(before, figures)
     quality = result.quality
     if len(quality["reasons"]) < len(before["reasons"]):  # a symptom the dense map does not show
-        distortion, covered = quality["dense_distortion"], quality.get("dense_covered")
+        distortion = quality["dense_distortion"]
         logger.info(
             "the certified map looked %s (%s); its dense map does not: %.0f%% of its triangles face against "
-            "the target, %s of its sampled distances change by more than half%s (decimation noise)",
+            "the target, %s of its sampled distances change by more than half (decimation noise)",
             before["verdict"],
             "; ".join(before["reasons"]),
             100 * quality["dense_mirror"],
             "n/a" if distortion is None else f"{distortion:.0%}",
-            "" if covered is None else f", it covers {covered:.0%} of the source's area on the target",
         )
     _log_quality(quality)
 

@@ -273,7 +273,7 @@ def dense_figures(source: Mesh, target: Mesh, dense_map, covered_area: float | N
     (:data:`DENSE_COVERED_COLLAPSE`); None elsewhere.
     """
     small = max(source.n_verts, target.n_verts) <= DENSE_DISTORTION_MAX_VERTICES
-    open_target = topology(target).open_boundaries > 0
+    open_target = boundary_vertices(target.faces).size > 0
     measured = distortion(source, target, dense_map.vertex, around_boundaries=open_target) if small else None
     return {
         "dense_mirror": round(dense_mirror(source, target, dense_map.face, dense_map.bary), 4),
