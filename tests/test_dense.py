@@ -366,6 +366,22 @@ def test_a_large_source_shows_the_dense_stage_progress_and_gets_the_same_map(
     assert np.array_equal(shown.vertex, quiet.vertex) and np.array_equal(shown.bary, quiet.bary)
 
 
+def test_a_large_source_is_told_the_dense_stage_takes_minutes_and_how_to_skip_it(
+    creature_pair, wks_features, monkeypatch, caplog
+):
+    from spidermatch.dense import densify as densify_module
+
+    x, y, low_x, low_y, low_map, _ = creature_pair
+    caplog.set_level("INFO", logger="spidermatch.dense.densify")
+    densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features)
+    assert "dense.enabled=false" not in caplog.text  # a small source: nothing to announce
+    monkeypatch.setattr(densify_module, "LONG_STAGE_VERTICES", x.mesh.n_verts)
+    densify(x.mesh, y.mesh, low_x, low_y, low_map, *wks_features)
+    told = caplog.text
+    assert f"dense map of {x.mesh.n_verts} source vertices onto {y.mesh.n_verts} target vertices" in told
+    assert "takes minutes" in told and "dense.enabled=false" in told and "MatchSettings(dense=None)" in told
+
+
 def test_choices_of_members_of_very_different_valences_do_not_depend_on_their_chunk(monkeypatch):
     """Tables are trimmed to each chunk's widest member: alone or among the widest, the same choice."""
     import spidermatch.dense.unfold as unfold

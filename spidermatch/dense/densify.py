@@ -95,6 +95,11 @@ PROGRESS_VERTICES = 20_000
 """Sources with at least this many vertices show a progress bar of the dense stage (a 80 000-vertex
 scan takes about 50 s there, a FAUST_r mesh of 5 000 vertices about 3 s)."""
 
+LONG_STAGE_VERTICES = 50_000
+"""Sources with at least this many vertices are told before the dense stage that it takes minutes
+and how to skip it (measured, one core: about 2 min for a noisy 80 000-vertex scan, 9 min for a
+raw 240 000-vertex one; docs/dense_maps.md)."""
+
 ROTATION_ROUNDS = 5
 """``deformation``: alternations of rotations and positions in each as-rigid-as-possible fit."""
 
@@ -144,9 +149,24 @@ def densify(
     """
     settings = settings or DenseSettings()
     low_map = np.asarray(low_map, dtype=np.int64)
+    _announce_long_stage(source, target)
     with _progress_bar(source, settings) as progress:
         return _densified(source, target, (low_x, low_y, low_map), (source_features, target_features),
                           settings, spectra, rest_scale, progress)  # fmt: skip
+
+
+def _announce_long_stage(source: Mesh, target: Mesh) -> None:
+    """Say before a long dense stage (:data:`LONG_STAGE_VERTICES`) what it costs and how to skip it."""
+    if source.n_verts < LONG_STAGE_VERTICES:
+        return
+    logger.info(
+        "dense map of %d source vertices onto %d target vertices: at this size the stage takes "
+        "minutes (measured on one core: about 2 at 80 000 vertices, 9 at 240 000); the certified "
+        "matching does not need it, and dense.enabled=false (command line) or "
+        "MatchSettings(dense=None) (Python) skips it",
+        source.n_verts,
+        target.n_verts,
+    )
 
 
 def _progress_bar(source: Mesh, settings: DenseSettings) -> _StepBar:
