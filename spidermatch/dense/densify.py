@@ -97,8 +97,8 @@ scan takes about 50 s there, a FAUST_r mesh of 5 000 vertices about 3 s)."""
 
 LONG_STAGE_VERTICES = 50_000
 """Sources with at least this many vertices are told before the dense stage that it takes minutes
-and how to skip it (measured, one core: about 2 min for a noisy 80 000-vertex scan, 9 min for a
-raw 240 000-vertex one; docs/dense_maps.md)."""
+and how to skip it (measured, one core: 40 s for a clean 80 000-vertex subdivision of a FAUST_r
+body, about 2 min for a noisy one, 9 min for a raw 240 000-vertex scan; docs/dense_maps.md)."""
 
 ROTATION_ROUNDS = 5
 """``deformation``: alternations of rotations and positions in each as-rigid-as-possible fit."""
@@ -160,8 +160,8 @@ def _announce_long_stage(source: Mesh, target: Mesh) -> None:
     if source.n_verts < LONG_STAGE_VERTICES:
         return
     logger.info(
-        "dense map of %d source vertices onto %d target vertices: at this size the stage takes "
-        "minutes (measured on one core: about 2 at 80 000 vertices, 9 at 240 000); the certified "
+        "dense map of %d source vertices onto %d target vertices: at this size the stage can take "
+        "minutes (measured on one core: 40 s to 2 min at 80 000 vertices, 9 min at 240 000); the certified "
         "matching does not need it, and dense.enabled=false (command line) or "
         "MatchSettings(dense=None) (Python) skips it",
         source.n_verts,
