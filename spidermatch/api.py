@@ -58,6 +58,19 @@ BETTER_FEATURES_HINT = (
 )
 
 
+WKS_ON_PARTS_HINT = (
+    "WKS is unfit for parts: it describes each vertex by its shape's whole spectrum, and a part's "
+    "spectrum is not its whole's (of 12 runs of FAUST_r parts against whole bodies with WKS none was "
+    "certified or right, docs/partial.md); match parts with a network trained with partial copies "
+    "(spidermatch-train train/experiment=faust_r_unsup_partial, then features=learned checkpoint=PATH)"
+)
+
+
+def wks_on_parts_hint(feature_name: str, parts: bool) -> str:
+    """:data:`WKS_ON_PARTS_HINT` where WKS features meet a part (``parts``: a partial mode), else ""."""
+    return WKS_ON_PARTS_HINT if feature_name == "wks" and parts else ""
+
+
 def default_resolution(feature_name: str) -> int:
     """Faces of both decimated meshes when none is given: smaller for WKS, whose ILP is harder."""
     return WKS_RESOLUTION if feature_name == "wks" else LEARNED_RESOLUTION
@@ -524,6 +537,9 @@ def match(
     feature_time = time.perf_counter() - started
     if name == "wks":
         logger.info("features: WKS. %s", BETTER_FEATURES_HINT)
+    unfit_features = wks_on_parts_hint(name, kind.mode != "whole")
+    if unfit_features:
+        logger.warning("%s", unfit_features)
     run_settings = _settings(settings, name, resolution, time_limit, mip_rel_gap, strategy)
     run_settings = dataclasses.replace(run_settings, partial=kind.mode != "whole")
     check_settings(run_settings, solver_prefix="")  # messages name the keywords: time_limit=, not solver.
@@ -556,7 +572,7 @@ def match(
                 result.second_opinion = {"kept": "first", "error": str(error)}
             result.timings["second_opinion"] = time.perf_counter() - started
     if strict:
-        result.raise_for_status()
+        result.raise_for_status(unfit_features)
     matching = _matching(result, name, run_settings.resolution, {"features": feature_time, **result.timings})
     changed = (source_weld, target_weld, repaired, target_repaired, piece)
     matching = dataclasses.replace(

@@ -233,8 +233,12 @@ class MatchResult:
             raise MatchError("no matching: " + self.solve.status)
         return np.stack([self.source.to_full, self.target.to_full[self.low_map]], axis=1)
 
-    def raise_for_status(self) -> None:
-        """Raise the :class:`MatchError` subclass matching a failed solve or check."""
+    def raise_for_status(self, hint: str = "") -> None:
+        """Raise the :class:`MatchError` subclass matching a failed solve or check.
+
+        ``hint``: a clause the caller knows more about (e.g. features unfit for the pair), added to
+        the message of a run without a matching ("" for none).
+        """
         status = self.solve.status
         if status == "infeasible":
             raise InfeasibleError(
@@ -252,7 +256,7 @@ class MatchResult:
                 f"the solver stopped without any solution after {self.solve.wall_time:.0f} s"
                 f"{why_no_solution(self.solve.message)}: {remedy}, or match at a lower resolution "
                 f"(this run: {self.graph.n_layers} curve positions x {self.graph.n_target} target vertices; "
-                f"the solver said: {self.solve.message})"
+                f"the solver said: {self.solve.message})" + (f"; {hint}" if hint else "")
             )
         if status == "error" or self.low_map is None:
             raise SolverFailure(f"the solver failed: {self.solve.message}")

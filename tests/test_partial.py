@@ -245,9 +245,11 @@ def _matched_files(tmp_path, source: Mesh, target: Mesh, *overrides: str):
     return out
 
 
-def test_a_source_with_a_hole_is_matched_without_options(tmp_path, creature):
+def test_a_source_with_a_hole_is_matched_without_options(tmp_path, creature, caplog):
     holed = holes_cut(creature, np.array([10]), 0.85, "holed")
+    caplog.set_level("WARNING", logger="spidermatch.cli.inputs")
     out = _matched_files(tmp_path, holed.mesh, creature, "resolution=150", "solver.time_limit=600")
+    assert "WKS is unfit for parts" in caplog.text  # the default features, said before the solve
     result = json.loads((out / "result.json").read_text())
     assert result["pair"]["mode"] == "partial" and "1 boundary loop" in result["pair"]["reason"]
     assert result["status"] in ("optimal", "feasible")
@@ -406,3 +408,30 @@ def test_two_cut_parts_matched_as_wholes_by_default_are_warned_about(creature):
     assert "small holes" not in kind.reason and "cut" in kind.reason
     assert "partial=both" in kind.caution and "upper.off" in kind.caution and "lower.off" in kind.caution
     assert pair_kind(creature, creature).caution == ""  # two closed shapes: nothing to say
+
+
+def test_wks_on_a_part_is_warned_about_and_named_when_no_matching_is_found(creature, caplog):
+    """WKS of a part is not its whole's: said before the solve and in the error of a failed run."""
+    from spidermatch.api import WKS_ON_PARTS_HINT
+    from spidermatch.model.product_graph import ProductGraph
+    from spidermatch.pipeline import MatchResult, NoSolutionError
+    from spidermatch.solve.types import SolveResult
+
+    holed = holes_cut(creature, np.array([10]), 0.85, "holed").mesh
+    caplog.set_level("WARNING", logger="spidermatch.api")
+    spidermatch.match(holed, creature, features="wks", resolution=100, time_limit=30, strict=False)
+    assert "WKS is unfit for parts" in caplog.text and "faust_r_unsup_partial" in caplog.text
+    caplog.clear()
+    spidermatch.match(creature, creature, features="wks", resolution=100, time_limit=30, strict=False)
+    assert "WKS is unfit for parts" not in caplog.text  # two whole shapes: WKS is fine
+
+    empty = np.zeros(0, dtype=np.int64)
+    graph = ProductGraph(3, 4, np.zeros((0, 2), dtype=np.int64), empty, empty, empty.astype(np.int8))
+    stopped = SolveResult("no_solution", None, np.inf, 0.0, np.nan, 60.0, 0, 0, 0, "Time limit reached")
+    failed = MatchResult(None, None, None, graph, stopped)
+    with pytest.raises(NoSolutionError) as told:
+        failed.raise_for_status(WKS_ON_PARTS_HINT)
+    assert str(told.value).endswith(WKS_ON_PARTS_HINT) and "raise solver.time_limit" in str(told.value)
+    with pytest.raises(NoSolutionError) as plain:
+        failed.raise_for_status()
+    assert "WKS" not in str(plain.value)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spidermatch.api import BETTER_FEATURES_HINT, mesh_of
+from spidermatch.api import BETTER_FEATURES_HINT, mesh_of, wks_on_parts_hint
 from spidermatch.cli.settings import dense_settings
 from spidermatch.data.datasets import DatasetError, SyntheticShapes
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, pair_features
@@ -262,6 +262,9 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
     name = getattr(extractor, "name", type(extractor).__name__)
     if name == "wks":
         logger.info("features: WKS (no trained checkpoint given). %s", BETTER_FEATURES_HINT)
+    unfit_features = wks_on_parts_hint(name, inputs.partial or inputs.overlap)
+    if unfit_features:
+        logger.warning("%s", unfit_features)
     record = {}
     feat_x, feat_y = pair_features(
         extractor,

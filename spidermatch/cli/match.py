@@ -15,6 +15,7 @@ from functools import partial
 from pathlib import Path
 
 from spidermatch import shutdown
+from spidermatch.api import wks_on_parts_hint
 from spidermatch.cli.inputs import (
     INPUT_ERRORS,
     check_inputs,
@@ -147,7 +148,7 @@ def run_stages(cfg, output_dir: Path, report: dict, getters: tuple) -> int:
     report.update(result_summary(result, inputs, feature_name))
     report["timings_s"] = {"features": round(feature_time, 3), **report["timings_s"]}
     try:
-        result.raise_for_status()
+        result.raise_for_status(wks_on_parts_hint(feature_name, inputs.partial or inputs.overlap))
     except MatchError as error:
         logger.error("%s", error)
         if report["status"] not in ("infeasible", "no_solution"):
