@@ -71,6 +71,14 @@ def wks_on_parts_hint(feature_name: str, parts: bool) -> str:
     return WKS_ON_PARTS_HINT if feature_name == "wks" and parts else ""
 
 
+def warned_wks_on_parts(feature_name: str, parts: bool) -> str:
+    """:func:`wks_on_parts_hint`, logged as a warning when it says something."""
+    hint = wks_on_parts_hint(feature_name, parts)
+    if hint:
+        logger.warning("%s", hint)
+    return hint
+
+
 def default_resolution(feature_name: str) -> int:
     """Faces of both decimated meshes when none is given: smaller for WKS, whose ILP is harder."""
     return WKS_RESOLUTION if feature_name == "wks" else LEARNED_RESOLUTION
@@ -537,9 +545,7 @@ def match(
     feature_time = time.perf_counter() - started
     if name == "wks":
         logger.info("features: WKS. %s", BETTER_FEATURES_HINT)
-    unfit_features = wks_on_parts_hint(name, kind.mode != "whole")
-    if unfit_features:
-        logger.warning("%s", unfit_features)
+    unfit_features = warned_wks_on_parts(name, kind.mode != "whole")
     run_settings = _settings(settings, name, resolution, time_limit, mip_rel_gap, strategy)
     run_settings = dataclasses.replace(run_settings, partial=kind.mode != "whole")
     check_settings(run_settings, solver_prefix="")  # messages name the keywords: time_limit=, not solver.

@@ -247,7 +247,7 @@ def _matched_files(tmp_path, source: Mesh, target: Mesh, *overrides: str):
 
 def test_a_source_with_a_hole_is_matched_without_options(tmp_path, creature, caplog):
     holed = holes_cut(creature, np.array([10]), 0.85, "holed")
-    caplog.set_level("WARNING", logger="spidermatch.cli.inputs")
+    caplog.set_level("WARNING", logger="spidermatch.api")
     out = _matched_files(tmp_path, holed.mesh, creature, "resolution=150", "solver.time_limit=600")
     assert "WKS is unfit for parts" in caplog.text  # the default features, said before the solve
     result = json.loads((out / "result.json").read_text())

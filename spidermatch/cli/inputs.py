@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spidermatch.api import BETTER_FEATURES_HINT, mesh_of, wks_on_parts_hint
+from spidermatch.api import BETTER_FEATURES_HINT, mesh_of, warned_wks_on_parts
 from spidermatch.cli.settings import dense_settings
 from spidermatch.data.datasets import DatasetError, SyntheticShapes
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, pair_features
@@ -262,9 +262,7 @@ def compute_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.ndarray, 
     name = getattr(extractor, "name", type(extractor).__name__)
     if name == "wks":
         logger.info("features: WKS (no trained checkpoint given). %s", BETTER_FEATURES_HINT)
-    unfit_features = wks_on_parts_hint(name, inputs.partial or inputs.overlap)
-    if unfit_features:
-        logger.warning("%s", unfit_features)
+    warned_wks_on_parts(name, inputs.partial or inputs.overlap)
     record = {}
     feat_x, feat_y = pair_features(
         extractor,
