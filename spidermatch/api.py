@@ -447,6 +447,7 @@ def match(
     partial: str = "auto",
     repair: bool = False,
     second_opinion=None,
+    overlap_method: str = "features",
 ) -> Matching:
     """Match ``source`` to ``target`` with SpiderMatch and return a certified :class:`Matching`.
 
@@ -506,6 +507,11 @@ def match(
         opinion that fails leaves the first map, the error there). Measured with a second
         training of the network (``LearnedExtractor(other_checkpoint)``) on partial-to-full
         pairs: docs/partial.md. Not with ``partial="both"``.
+    overlap_method : str
+        With ``partial="both"``, how the source's overlap is found: "features" (the
+        descriptors' cycle consistency, before any solve) or "matched" (a certified matching
+        of all of the source onto the target, a void vertex standing for "no partner":
+        :mod:`spidermatch.model.void`; one more solve). ``details.overlap_found`` records it.
 
     Returns
     -------
@@ -531,6 +537,7 @@ def match(
         )
     dense_planned = settings is None or getattr(settings, "dense", None) is not None
     check_meshes_fit((source_mesh.n_verts, target_mesh.n_verts), dense_planned)
+    check_overlap_method(overlap_method, "overlap_method")
     kind = recognised_pair(source_mesh, target_mesh, partial)
     started = time.perf_counter()
     overlap = kind.mode == "overlap"
@@ -551,11 +558,15 @@ def match(
     check_settings(run_settings, solver_prefix="")  # messages name the keywords: time_limit=, not solver.
     piece = None
     if overlap:  # only the source region with a partner is matched, as a part of the target
-        piece = source_overlap_piece(source_mesh, target_mesh, feat_x, feat_y)
+        piece, overlap_record = source_overlap_piece(
+            source_mesh, target_mesh, feat_x, feat_y, overlap_method, run_settings
+        )
         feat_x = feat_x[piece.to_original]
     matched_source = source_mesh if piece is None else piece.mesh
     result = run_pipeline(matched_source, target_mesh, feat_x, feat_y, run_settings)
     result.pair = kind
+    if overlap:
+        result.overlap_found = overlap_record
     if second_opinion is not None and needs_second_opinion(result):
         if overlap:
             logger.info("no second opinion with partial='both': the suspect map stands")
@@ -738,8 +749,45 @@ def _checked_or_repaired(
         return repaired.piece.mesh, repaired
 
 
-def source_overlap_piece(source: Mesh, target: Mesh, feat_x: np.ndarray, feat_y: np.ndarray) -> PartialShape:
-    """The piece of ``source`` estimated to overlap ``target`` (two parts of one surface, one unit).
+OVERLAP_METHODS = ("features", "matched")
+"""How ``partial="both"`` finds the source's overlap: by the descriptors' cycle consistency
+(:func:`~spidermatch.geometry.overlap.estimated_overlap`) or by a certified matching of all of
+the source with a void vertex (:func:`~spidermatch.overlap_solve.matched_overlap`)."""
+
+
+def check_overlap_method(method: str, keyword: str) -> None:
+    """Raise ValueError naming ``keyword`` unless ``method`` is one of :data:`OVERLAP_METHODS`."""
+    if method not in OVERLAP_METHODS:
+        raise ValueError(f"{keyword}={method!r}: choose from {', '.join(map(repr, OVERLAP_METHODS))}")
+
+
+def source_overlap_piece(
+    source: Mesh,
+    target: Mesh,
+    feat_x: np.ndarray,
+    feat_y: np.ndarray,
+    method: str = "features",
+    settings=None,
+) -> tuple[PartialShape, dict]:
+    """The piece of ``source`` found to overlap ``target`` (two parts of one surface, one unit).
+
+    Parameters
+    ----------
+    source, target : Mesh
+    feat_x : np.ndarray, shape (V_X, D)
+    feat_y : np.ndarray, shape (V_Y, D)
+    method : str
+        One of :data:`OVERLAP_METHODS`. A "matched" solve that ends without a matching falls
+        back to "features", logged.
+    settings : spidermatch.pipeline.MatchSettings, optional
+        The match's settings, for the "matched" solve.
+
+    Returns
+    -------
+    piece : PartialShape
+    record : dict
+        ``method`` used and, for "matched", the solve's ``status``, ``objective``, ``bound``,
+        ``gap``, ``solve_s`` and ``void_share`` (``result.json["overlap"]["found_by"]``).
 
     Raises
     ------
@@ -749,8 +797,20 @@ def source_overlap_piece(source: Mesh, target: Mesh, feat_x: np.ndarray, feat_y:
     """
     from spidermatch.model.costs import unit_rows
 
-    unit_length = float(np.sqrt(max(source.area, target.area)))
-    region = estimated_overlap(source, target, unit_rows(feat_x), unit_rows(feat_y), unit_length)
+    check_overlap_method(method, "overlap_method")
+    region, record = None, {"method": "features"}
+    if method == "matched":
+        from spidermatch.overlap_solve import matched_overlap
+        from spidermatch.pipeline import MatchSettings
+
+        found = matched_overlap(source, target, feat_x, feat_y, settings or MatchSettings())
+        region, record = found.region, {"method": "matched", **found.summary()}
+        if region is None:
+            logger.warning("no overlap matched in time: estimated from the descriptors instead")
+            record["fallback"] = "features"
+    if region is None:
+        unit_length = float(np.sqrt(max(source.area, target.area)))
+        region = estimated_overlap(source, target, unit_rows(feat_x), unit_rows(feat_y), unit_length)
     piece = overlap_part(source, region)
     logger.info(
         "%s: matching its overlap with %s, %d of %d vertices (%.0f %% of its area)",
@@ -760,7 +820,7 @@ def source_overlap_piece(source: Mesh, target: Mesh, feat_x: np.ndarray, feat_y:
         source.n_verts,
         100 * piece.kept_area,
     )
-    return piece
+    return piece, record
 
 
 def on_whole_source(matching: Matching, piece: PartialShape, n_source: int) -> Matching:

@@ -29,7 +29,7 @@ from spidermatch.geometry.holes import (
     nearest_given_vertices,
     sides_to_close,
 )
-from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.mesh import Mesh, boundary_vertices
 from spidermatch.geometry.partial import PairKind, covered_target, mean_edge_length
 from spidermatch.geometry.remesh import Decimated, decimate
 from spidermatch.model.correspondence import (
@@ -47,6 +47,7 @@ from spidermatch.model.curve import AUTO_TOUR, TOURS, SpiderCurve, spider_curve
 from spidermatch.model.ilp import FAMILIES, IlpModel
 from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import ProductGraph, build_product_graph
+from spidermatch.model.void import void_cost, with_void
 from spidermatch.model_size import check_model_fits
 from spidermatch.solve.isolate import (
     POLL_S,
@@ -201,6 +202,9 @@ class MatchResult:
     second_opinion : dict or None
         When the map was judged suspect and matched again with a second opinion's features
         (:func:`kept_opinion`): which map was kept and each one's status, gap and verdict.
+    overlap_found : dict or None
+        With ``partial="both"``: how the matched source piece was found
+        (:func:`spidermatch.api.source_overlap_piece`'s record).
 
     """
 
@@ -220,6 +224,7 @@ class MatchResult:
     closed: tuple = (None, None)
     tours: list = field(default_factory=list)
     second_opinion: dict | None = None
+    overlap_found: dict | None = None
 
     @property
     def dense_map(self) -> np.ndarray | None:
@@ -322,6 +327,7 @@ def prepare(
     settings: MatchSettings,
     timings: dict,
     closed: tuple | None = None,
+    void_factor: float | None = None,
 ) -> tuple[Decimated, Decimated, SpiderCurve, ProductGraph, IlpModel | LazyModel]:
     """Decimate, trace the curve, build the product graph, the costs and the ILP.
 
@@ -329,6 +335,8 @@ def prepare(
     columns are built by the strategy); otherwise the full :class:`IlpModel`. ``closed``: the
     meshes' copies with small holes closed (:func:`closed_copies`, computed when not given);
     a mesh that has one is matched on it, its decimated vertices mapped to given vertices only.
+    ``void_factor``: the target graph gets a void vertex (:mod:`spidermatch.model.void`) of
+    that cost factor, index ``low_y.mesh.n_verts``; None: the plain target.
     """
     settings = strategy_resolved(settings)
     _check_features(source, source_features, "source")
@@ -359,19 +367,36 @@ def prepare(
         )
     with _stage(timings, "costs"):
         edges_y = low_y.mesh.augmented_edges if settings.target_augmented else low_y.mesh.edges
-        graph = build_product_graph(curve.length, low_y.mesh.n_verts, edges_y)
         vertex_costs = feature_cost_matrix(
             low_resolution_features(source_features, low_x.to_full),
             low_resolution_features(target_features, low_y.to_full),
             settings.loss,
         )
+        target_verts, crossing, void = low_y.mesh.verts * length_scale(target), None, None
+        if void_factor is not None:
+            augmented = with_void(
+                target_verts,
+                boundary_vertices(low_y.mesh.faces),
+                vertex_costs,
+                void_cost(vertex_costs, void_factor),
+            )
+            target_verts, vertex_costs = augmented.verts, augmented.vertex_costs
+            crossing, void = augmented.crossing_edges, augmented.void
+            logger.info(
+                "void vertex: %d target boundary vertices, cost %.4g (%.3g x the median cheapest)",
+                len(crossing),
+                augmented.cost,
+                void_factor,
+            )
+        graph = build_product_graph(curve.length, target_verts.shape[0], edges_y, crossing)
         lazy = LazyModel(
             graph,
             curve,
             low_x.mesh.verts * source_scale,
-            low_y.mesh.verts * length_scale(target),
+            target_verts,
             vertex_costs,
             tuple(settings.constraints),
+            void,
         )
         if settings.strategy in LAZY_STRATEGIES:  # the full model is never built
             logger.info(

@@ -299,6 +299,47 @@ def test_two_overlapping_parts_are_matched_on_their_overlap_only(creature):
     assert quality["verdict"] == "plausible" and quality["unjudged"] == [], quality
 
 
+def test_the_overlap_matched_with_a_void_vertex_is_closer_to_the_truth_than_the_estimate(creature):
+    """The certified matching of all of one part decides its overlap: the band both cuts share."""
+    normal = np.array([0.0, 1.0, 0.3])
+    lower = plane_cut(creature, normal, 0.65, "lower")
+    upper = plane_cut(creature, -normal, 0.65, "upper")
+    code = _smooth_position_code(creature.verts)
+    result = spidermatch.match(
+        lower.mesh,
+        upper.mesh,
+        features=(code[lower.to_original], code[upper.to_original]),
+        resolution=300,
+        time_limit=600,
+        partial="both",
+        overlap_method="matched",
+    )
+    found_by = result.details.overlap_found
+    assert found_by["method"] == "matched" and found_by["status"] == "optimal", found_by
+    assert 0.3 < found_by["void_share"] < 0.7
+    assert result.status == "optimal"
+    in_upper = np.zeros(creature.n_verts, dtype=bool)
+    in_upper[upper.to_original] = True
+    truth = in_upper[lower.to_original]
+    found, areas = result.source_overlap, lower.mesh.vertex_areas
+    assert areas[found & truth].sum() / areas[found | truth].sum() > 0.8  # 0.68 by the descriptors' estimate
+    assert areas[found & truth].sum() / areas[found].sum() > 0.9  # little matched without a partner
+    both = found & truth
+    dense_error = np.linalg.norm(upper.mesh.verts[result.dense_map[both]] - lower.mesh.verts[both], axis=1)
+    assert np.mean(dense_error) < 0.5 * mean_edge_length(creature)
+
+
+def test_an_unknown_overlap_method_is_refused_by_name(tmp_path, creature):
+    with pytest.raises(ValueError, match="overlap_method='cycle'"):
+        spidermatch.match(creature, creature, partial="both", overlap_method="cycle")
+    save_mesh(creature, tmp_path / "a.off")
+    files = [f"source={tmp_path / 'a.off'}", f"target={tmp_path / 'a.off'}"]
+    cfg = composed("match", [*files, "partial=both", "partial_overlap=cycle", "output.png=false"])
+    assert run_match(cfg, tmp_path / "run") == 2
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert "partial_overlap='cycle'" in result["error"] and "features, matched" in result["error"]
+
+
 def test_partial_both_accepts_only_its_three_names(creature):
     with pytest.raises(ValueError, match="'auto', 'off' or 'both'"):
         spidermatch.match(creature, creature, partial="overlap")
@@ -321,6 +362,7 @@ def test_the_command_line_matches_two_parts_and_writes_the_source_own_indices(tm
     assert result["pair"]["mode"] == "overlap" and result["status"] in ("optimal", "feasible")
     n_piece = result["overlap"]["source_overlap_vertices"]
     assert 0 < n_piece < lower.mesh.n_verts and 0 < result["overlap"]["source_overlap_area"] < 1
+    assert result["overlap"]["found_by"] == {"method": "features"}
     assert "target_covered_area" in result["overlap"]
     with np.load(out / "dense_map.npz") as dense:
         ids = dense["source_vertex"]

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spidermatch.api import BETTER_FEATURES_HINT, mesh_of, warned_wks_on_parts
+from spidermatch.api import BETTER_FEATURES_HINT, OVERLAP_METHODS, mesh_of, warned_wks_on_parts
 from spidermatch.cli.settings import dense_settings
 from spidermatch.data.datasets import DatasetError, SyntheticShapes
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, pair_features
@@ -172,6 +172,9 @@ def checked_pair_kind(cfg, inputs: MatchInputs, report: dict) -> PairKind:
     option = cfg.get("partial", "auto")
     if option not in PARTIAL_OPTIONS:
         raise OptionError(f"partial={option!r}: choose from {', '.join(PARTIAL_OPTIONS)}")
+    overlap_method = cfg.get("partial_overlap", "features")
+    if overlap_method not in OVERLAP_METHODS:
+        raise OptionError(f"partial_overlap={overlap_method!r}: choose from {', '.join(OVERLAP_METHODS)}")
     if option == "both":
         return overlap_kind(inputs.source, inputs.target)
     try:
@@ -297,12 +300,21 @@ def second_opinion_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.nd
     return feat_x, feat_y
 
 
-def overlap_inputs(inputs: MatchInputs, feat_x: np.ndarray, feat_y: np.ndarray, report: dict):
-    """``partial=both``: the inputs cut to the source's estimated overlap with the target, and its features.
+def overlap_inputs(
+    inputs: MatchInputs,
+    feat_x: np.ndarray,
+    feat_y: np.ndarray,
+    report: dict,
+    method: str = "features",
+    settings=None,
+):
+    """``partial=both``: the inputs cut to the source's overlap with the target, and its features.
 
-    The ground truth keeps the reference points inside the piece (renumbered to it);
-    ``piece_of`` says where each vertex and face of the piece lies in the user's source, so
-    that the files name the source's own indices. ``report["overlap"]`` gets the piece's size.
+    ``method`` and ``settings``: :func:`spidermatch.api.source_overlap_piece`'s (``partial_overlap``
+    on the command line). The ground truth keeps the reference points inside the piece
+    (renumbered to it); ``piece_of`` says where each vertex and face of the piece lies in the
+    user's source, so that the files name the source's own indices. ``report["overlap"]`` gets
+    the piece's size and how it was found (``found_by``).
 
     Returns
     -------
@@ -313,10 +325,11 @@ def overlap_inputs(inputs: MatchInputs, feat_x: np.ndarray, feat_y: np.ndarray, 
     """
     from spidermatch.api import source_overlap_piece
 
-    piece = source_overlap_piece(inputs.source, inputs.target, feat_x, feat_y)
+    piece, found_by = source_overlap_piece(inputs.source, inputs.target, feat_x, feat_y, method, settings)
     report["overlap"] = {
         "source_overlap_vertices": int(piece.mesh.n_verts),
         "source_overlap_area": round(float(piece.kept_area), 4),
+        "found_by": found_by,
     }
     source_corr, target_corr = _corr_inside(
         piece, inputs.source.n_verts, inputs.source_corr, inputs.target_corr

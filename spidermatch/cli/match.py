@@ -131,11 +131,12 @@ def run_stages(cfg, output_dir: Path, report: dict, getters: tuple) -> int:
     if details:
         report["feature_inputs"] = details
     logger.info("features (%s) done in %.2f s", feature_name, feature_time)
-    if inputs.overlap:  # partial=both: only the source's estimated overlap with the target is matched
-        inputs, feat_x = overlap_inputs(inputs, feat_x, feat_y, report)
     settings = dataclasses.replace(
         settings_from_config(cfg, inputs.resolution, feature_name), partial=inputs.partial
     )
+    if inputs.overlap:  # partial=both: only the source's overlap with the target is matched
+        method = cfg.get("partial_overlap", "features")
+        inputs, feat_x = overlap_inputs(inputs, feat_x, feat_y, report, method, settings)
     logger.info("solving strategy: %s", settings.strategy)
     result = match(
         inputs.source,

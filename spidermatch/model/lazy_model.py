@@ -41,6 +41,10 @@ class LazyModel:
         R of :func:`spidermatch.model.costs.feature_cost_matrix`.
     families : tuple of str
         Constraint families, a subset of ``FAMILIES`` (rows in ``FAMILIES`` order).
+    void_vertex : int or None
+        The target's void vertex (:mod:`spidermatch.model.void`): the "no partner" state of a
+        partial-to-partial matching. Its edges have no target length, and no ANS row counts it
+        (any number of curve vertices may have no partner). None: a plain target.
 
     """
 
@@ -50,6 +54,7 @@ class LazyModel:
     target_verts: np.ndarray
     vertex_costs: np.ndarray
     families: tuple = FAMILIES
+    void_vertex: int | None = None
 
     def __post_init__(self) -> None:
         if self.curve.length != self.graph.n_layers:
@@ -159,6 +164,8 @@ class LazyModel:
         c, graph = self.curve.vertices, self.graph
         source = ((self.source_verts[c] - self.source_verts[np.roll(c, -1)]) ** 2).sum(axis=-1)
         target = ((self.target_verts[graph.block_src] - self.target_verts[graph.block_dst]) ** 2).sum(axis=-1)
+        if self.void_vertex is not None:  # leaving or entering the overlap is no step on the target
+            target[(graph.block_src == self.void_vertex) | (graph.block_dst == self.void_vertex)] = 0.0
         return source, target
 
     def _costs(self, layer: np.ndarray, entry: np.ndarray, next_layer: np.ndarray) -> np.ndarray:
@@ -272,6 +279,8 @@ class LazyModel:
         counted = ((kind == INTRA) & tables["free"][layer]) | (
             (kind != INTRA) & (kind != STAY) & tables["free_inter"][layer]
         )
+        if self.void_vertex is not None:
+            counted &= self.graph.block_dst[entry] != self.void_vertex
         where = np.flatnonzero(counted)
         return self.graph.block_dst[entry[where]], where, np.ones(where.size)
 

@@ -1,8 +1,9 @@
 """The product graph P = C x Y of a SpiderCurve and a target mesh (method.md section 3).
 
 Product vertex (l, y) has index ``l * V_Y + y``. Edges are stored layer by layer;
-each layer's block is [intra edges (E_dir) | inter edges (E_dir) | stay edges (V_Y)],
-so edge ``l * B + k`` (B = 2 E_dir + V_Y) is entry k of layer l's block.
+each layer's block is [intra edges (E_dir) | inter edges (E_dir, then any crossing-only
+edges) | stay edges (V_Y)], so edge ``l * B + k`` (B = 2 E_dir + V_Y without crossing-only
+edges) is entry k of layer l's block.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ class ProductGraph:
 
     @property
     def block_size(self) -> int:
-        """Edges per layer B = 2 E_dir + V_Y."""
+        """Edges per layer B = 2 E_dir + V_Y (plus the crossing-only edges, both ways)."""
         return int(self.block_kind.shape[0])
 
     @property
@@ -138,7 +139,9 @@ def cyclic_runs(flags: np.ndarray) -> list[tuple[int, int]]:
     return sorted((int((start + shift) % n), int(stop - start)) for start, stop in zip(starts, stops))
 
 
-def build_product_graph(n_layers: int, n_target: int, target_edges: np.ndarray) -> ProductGraph:
+def build_product_graph(
+    n_layers: int, n_target: int, target_edges: np.ndarray, crossing_edges: np.ndarray | None = None
+) -> ProductGraph:
     """Product graph of a cyclic curve with ``n_layers`` positions and a target graph.
 
     Parameters
@@ -149,15 +152,22 @@ def build_product_graph(n_layers: int, n_target: int, target_edges: np.ndarray) 
         V_Y.
     target_edges : np.ndarray, shape (E, 2)
         Undirected target edges (plain or augmented).
+    crossing_edges : np.ndarray, shape (E_c, 2), optional
+        Undirected edges taken only while the curve advances (inter edges, both ways, after
+        those of ``target_edges``; no intra edge). The void vertex of a partial-to-partial
+        matching is joined to the target's boundary this way (:mod:`spidermatch.model.void`).
+        ``target_edges`` stays the graph's ``target_edges``.
 
     """
     directed = directed_edges(np.asarray(target_edges, dtype=np.int64))
-    n_dir = directed.shape[0]
+    crossing = directed
+    if crossing_edges is not None and len(crossing_edges):
+        crossing = np.concatenate([directed, directed_edges(np.asarray(crossing_edges, dtype=np.int64))])
     stay = np.arange(n_target, dtype=np.int64)
-    block_src = np.concatenate([directed[:, 0], directed[:, 0], stay])
-    block_dst = np.concatenate([directed[:, 1], directed[:, 1], stay])
+    block_src = np.concatenate([directed[:, 0], crossing[:, 0], stay])
+    block_dst = np.concatenate([directed[:, 1], crossing[:, 1], stay])
     block_kind = np.concatenate(
-        [np.full(n_dir, INTRA), np.full(n_dir, INTER), np.full(n_target, STAY)]
+        [np.full(len(directed), INTRA), np.full(len(crossing), INTER), np.full(n_target, STAY)]
     ).astype(np.int8)
     for array in (directed, block_src, block_dst, block_kind):
         array.setflags(write=False)

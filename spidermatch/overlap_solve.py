@@ -1,0 +1,107 @@
+"""The overlap of two parts found by the matching itself (``overlap="matched"``).
+
+:func:`spidermatch.geometry.overlap.estimated_overlap` reads the overlap off the descriptors
+before any solve. Here the SpiderMatch ILP over all of the source decides it, with a void
+vertex on the target (:mod:`spidermatch.model.void`): a curve position with no partner is
+matched to the void at a cost per unit of length, and the void is entered and left only at the
+target's boundary. The source vertices the certified solution matches to the target are the
+overlap; the piece they make is then matched as a part of the target as before.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from spidermatch.geometry.mesh import Mesh
+from spidermatch.model.curve import AUTO_TOUR, TOURS
+from spidermatch.model.void import VOID_FACTOR, matched_curve_vertices, void_layers
+from spidermatch.pipeline import MatchSettings, _solved, closed_copies, prepare, strategy_resolved
+from spidermatch.solve.types import SolveResult
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, eq=False)
+class MatchedOverlap:
+    """The source overlap a void-vertex solve found.
+
+    Attributes
+    ----------
+    region : np.ndarray, shape (V_X,), bool, or None
+        Source vertices matched to the target (each takes the answer of its nearest decimated
+        vertex); None when the solve ended without a solution.
+    solved : SolveResult
+        The solve (its ``x`` let go).
+    void_share : float
+        Share of the curve's positions matched to the void (nan without a solution).
+
+    """
+
+    region: np.ndarray | None
+    solved: SolveResult
+    void_share: float
+
+    def summary(self) -> dict:
+        """What ``result.json["overlap"]["matched"]`` records of the solve."""
+        solved = self.solved
+        return {
+            "status": solved.status,
+            "objective": float(solved.objective),
+            "bound": float(solved.bound),
+            "gap": float(solved.gap),
+            "solve_s": round(float(solved.wall_time), 3),
+            "void_share": round(float(self.void_share), 4),
+        }
+
+
+def matched_overlap(
+    source: Mesh,
+    target: Mesh,
+    source_features: np.ndarray,
+    target_features: np.ndarray,
+    settings: MatchSettings,
+    void_factor: float = VOID_FACTOR,
+) -> MatchedOverlap:
+    """Solve the ILP of all of ``source`` onto ``target`` with a void vertex; the source it matches.
+
+    Parameters
+    ----------
+    source, target : Mesh
+        Two parts of one surface in one unit (V_X and V_Y vertices).
+    source_features : np.ndarray, shape (V_X, D)
+    target_features : np.ndarray, shape (V_Y, D)
+    settings : MatchSettings
+        As for the match (resolution, solver, costs); the source is measured as a part of the
+        target, no dense map is made, and ``curve_tour="auto"`` takes the paper's tour.
+    void_factor : float
+        :func:`spidermatch.model.void.void_cost`'s factor.
+
+    """
+    tour = TOURS[0] if settings.curve_tour == AUTO_TOUR else settings.curve_tour
+    settings = strategy_resolved(dataclasses.replace(settings, partial=True, dense=None, curve_tour=tour))
+    closed = closed_copies(source, target, settings)
+    low_x, _, curve, graph, model = prepare(
+        source, target, source_features, target_features, settings, {}, closed, void_factor=void_factor
+    )
+    void = graph.n_target - 1  # with_void appends it
+    solved = _solved(model, graph, curve, settings)
+    if solved.x is None:
+        logger.warning("the overlap solve ended %s without a matching: %s", solved.status, solved.message)
+        return MatchedOverlap(None, dataclasses.replace(solved, x=None), float("nan"))
+    in_void = void_layers(graph, solved.x, void)
+    matched_low = matched_curve_vertices(curve.vertices, in_void, low_x.mesh.n_verts)
+    nearest = cKDTree(source.verts[low_x.to_full]).query(source.verts)[1]
+    region = matched_low[nearest]
+    logger.info(
+        "overlap matched: %.0f %% of the curve in the void, %.0f %% of %s's area matched (%s)",
+        100 * in_void.mean(),
+        100 * source.vertex_areas[region].sum() / source.area,
+        source.name,
+        solved.status,
+    )
+    return MatchedOverlap(region, dataclasses.replace(solved, x=None), float(in_void.mean()))
