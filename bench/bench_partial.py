@@ -17,7 +17,9 @@ reference point is shared when both parts kept it). Per run also: ``source_iou``
 the estimated source overlap (``Matching.source_overlap``) with the true one;
 ``overlap_mapped``, the share of the shared reference points the map reaches (the rest fell
 outside the estimate); ``dense_error`` over those, on the whole target shape; ``iou`` of the
-covered target region with the target's true overlap::
+covered target region with the target's true overlap. ``--overlap-method matched`` finds the
+source overlap by a matching with a void vertex (``overlap_method="matched"``; per run also that
+solve's ``overlap_status``, ``void_share`` and ``overlap_solve_s``)::
 
     .venv/bin/python bench/bench_partial.py --data ../shared/data/FAUST_r --parts runs/partial_faust \\
         --pairs bench/faust_val_pairs.txt --checkpoint ../runs/faust_unsup_partial_seed0/best.pt \\
@@ -51,6 +53,7 @@ from spidermatch.geometry.io import load_mesh
 from spidermatch.geometry.mesh import Mesh, topology
 from spidermatch.geometry.partial import kept_part
 from spidermatch.geometry.remesh import nearest_vertices
+from spidermatch.model import void
 
 COLUMNS = (
     "part", "target", "kept_area", "mode", "status", "gap", "solve_s", "total_s", "dense_error", "iou",
@@ -58,6 +61,7 @@ COLUMNS = (
 )  # fmt: skip
 BAD_ERROR = 0.1  # a dense error above this is a wrong map (a misplaced or mirrored part)
 OVERLAP_COLUMNS = (*COLUMNS, "source_iou", "overlap_mapped")
+OVERLAP_COLUMNS += ("overlap_status", "void_share", "overlap_solve_s")  # --overlap-method matched
 
 
 def true_overlap(target: Mesh, target_corr: np.ndarray, kept_rows: np.ndarray) -> np.ndarray:
@@ -234,6 +238,7 @@ def _timed_match(source: Mesh, target: Mesh, args, extractor, partial: str, row:
         strict=False,
         partial=partial,
         second_opinion=getattr(args, "second_network", None),
+        overlap_method=getattr(args, "overlap_method", "features"),
     )
     row["total_s"] = round(time.perf_counter() - started, 1)
     row.update(
@@ -242,6 +247,10 @@ def _timed_match(source: Mesh, target: Mesh, args, extractor, partial: str, row:
         gap=result.gap,
         solve_s=round(result.timings.get("solve", float("nan")), 1),
     )
+    found_by = result.details.overlap_found or {}
+    if found_by.get("method") == "matched":  # the overlap's own solve
+        row.update(overlap_status=found_by.get("status"), void_share=found_by.get("void_share"))
+        row["overlap_solve_s"] = found_by.get("solve_s")
     if result.details.second_opinion:  # asked: which map was kept
         row["second_opinion"] = result.details.second_opinion.get("kept")
     if result.quality:  # the verdict without ground truth, to set beside the error
@@ -509,12 +518,26 @@ def main(argv: list[str] | None = None) -> int:
         help="a second network: a map judged suspect is matched again with both (spidermatch.match's "
         "second_opinion)",
     )
+    parser.add_argument(
+        "--overlap-method",
+        choices=("features", "matched"),
+        default="features",
+        help="--mode both: the source's overlap by the descriptors or by a matching with a void vertex",
+    )
+    parser.add_argument(
+        "--void-factor",
+        type=float,
+        default=None,
+        help="--overlap-method matched: the void's cost factor (spidermatch.model.void.VOID_FACTOR)",
+    )
     parser.add_argument("--faces", type=int, default=1000)
     parser.add_argument("--time-limit", type=float, default=120.0)
     parser.add_argument("--runs", default=None, help="FIRST:STOP, a slice of the runs")
     parser.add_argument("--out", required=True, type=Path)
     args = parser.parse_args(argv)
     apply_part_search_options(args)
+    if args.void_factor is not None:
+        void.VOID_FACTOR = args.void_factor
     logging.basicConfig(level=logging.WARNING)
     folder = ShapeFolder(args.data)
     manifest = part_manifest(args.parts)

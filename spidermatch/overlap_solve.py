@@ -18,8 +18,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from spidermatch.geometry.mesh import Mesh
+from spidermatch.model import void
 from spidermatch.model.curve import AUTO_TOUR, TOURS
-from spidermatch.model.void import VOID_FACTOR, matched_curve_vertices, void_layers
+from spidermatch.model.void import matched_curve_vertices, void_layers
 from spidermatch.pipeline import MatchSettings, _solved, closed_copies, prepare, strategy_resolved
 from spidermatch.solve.types import SolveResult
 
@@ -65,7 +66,7 @@ def matched_overlap(
     source_features: np.ndarray,
     target_features: np.ndarray,
     settings: MatchSettings,
-    void_factor: float = VOID_FACTOR,
+    void_factor: float | None = None,
 ) -> MatchedOverlap:
     """Solve the ILP of all of ``source`` onto ``target`` with a void vertex; the source it matches.
 
@@ -78,22 +79,24 @@ def matched_overlap(
     settings : MatchSettings
         As for the match (resolution, solver, costs); the source is measured as a part of the
         target, no dense map is made, and ``curve_tour="auto"`` takes the paper's tour.
-    void_factor : float
-        :func:`spidermatch.model.void.void_cost`'s factor.
+    void_factor : float, optional
+        :func:`spidermatch.model.void.void_cost`'s factor (default
+        :data:`spidermatch.model.void.VOID_FACTOR`).
 
     """
+    void_factor = void.VOID_FACTOR if void_factor is None else void_factor
     tour = TOURS[0] if settings.curve_tour == AUTO_TOUR else settings.curve_tour
     settings = strategy_resolved(dataclasses.replace(settings, partial=True, dense=None, curve_tour=tour))
     closed = closed_copies(source, target, settings)
     low_x, _, curve, graph, model = prepare(
         source, target, source_features, target_features, settings, {}, closed, void_factor=void_factor
     )
-    void = graph.n_target - 1  # with_void appends it
+    void_vertex = graph.n_target - 1  # with_void appends it
     solved = _solved(model, graph, curve, settings)
     if solved.x is None:
         logger.warning("the overlap solve ended %s without a matching: %s", solved.status, solved.message)
         return MatchedOverlap(None, dataclasses.replace(solved, x=None), float("nan"))
-    in_void = void_layers(graph, solved.x, void)
+    in_void = void_layers(graph, solved.x, void_vertex)
     matched_low = matched_curve_vertices(curve.vertices, in_void, low_x.mesh.n_verts)
     nearest = cKDTree(source.verts[low_x.to_full]).query(source.verts)[1]
     region = matched_low[nearest]
