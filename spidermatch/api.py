@@ -798,20 +798,22 @@ def source_overlap_piece(
     from spidermatch.model.costs import unit_rows
 
     check_overlap_method(method, "overlap_method")
-    region, record = None, {"method": "features"}
+    region, record, found_as = None, {"method": "features"}, ""
     if method == "matched":
         from spidermatch.overlap_solve import matched_overlap
         from spidermatch.pipeline import MatchSettings
 
         found = matched_overlap(source, target, feat_x, feat_y, settings or MatchSettings())
         region, record = found.region, {"method": "matched", **found.summary()}
+        found_as = "was matched to the target, the rest to the void"
         if region is None:
             logger.warning("no overlap matched in time: estimated from the descriptors instead")
             record["fallback"] = "features"
     if region is None:
         unit_length = float(np.sqrt(max(source.area, target.area)))
         region = estimated_overlap(source, target, unit_rows(feat_x), unit_rows(feat_y), unit_length)
-    piece = overlap_part(source, region)
+        found_as = "has descriptors that match back to themselves"
+    piece = overlap_part(source, region, found_as)
     logger.info(
         "%s: matching its overlap with %s, %d of %d vertices (%.0f %% of its area)",
         source.name,

@@ -1,4 +1,4 @@
-"""The overlap of two parts found by the matching itself (``overlap="matched"``).
+"""The overlap of two parts found by the matching itself (``overlap_method="matched"``).
 
 :func:`spidermatch.geometry.overlap.estimated_overlap` reads the overlap off the descriptors
 before any solve. Here the SpiderMatch ILP over all of the source decides it, with a void
@@ -22,7 +22,7 @@ from spidermatch.model import void
 from spidermatch.model.curve import AUTO_TOUR, TOURS
 from spidermatch.model.void import matched_curve_vertices, void_layers
 from spidermatch.pipeline import MatchSettings, _solved, closed_copies, prepare, strategy_resolved
-from spidermatch.solve.types import SolveResult
+from spidermatch.solve.types import SolveResult, finite_or_none
 
 logger = logging.getLogger(__name__)
 
@@ -48,15 +48,15 @@ class MatchedOverlap:
     void_share: float
 
     def summary(self) -> dict:
-        """What ``result.json["overlap"]["matched"]`` records of the solve."""
+        """What ``result.json["overlap"]["found_by"]`` records of the solve (None for an undefined figure)."""
         solved = self.solved
         return {
             "status": solved.status,
-            "objective": float(solved.objective),
-            "bound": float(solved.bound),
-            "gap": float(solved.gap),
+            "objective": finite_or_none(solved.objective),
+            "bound": finite_or_none(solved.bound),
+            "gap": finite_or_none(solved.gap),
             "solve_s": round(float(solved.wall_time), 3),
-            "void_share": round(float(self.void_share), 4),
+            "void_share": finite_or_none(round(float(self.void_share), 4)),
         }
 
 

@@ -99,8 +99,12 @@ def estimated_overlap(
     return region
 
 
-def overlap_part(source: Mesh, overlap: np.ndarray) -> PartialShape:
+def overlap_part(
+    source: Mesh, overlap: np.ndarray, found_as: str = "has descriptors that match back to themselves"
+) -> PartialShape:
     """The largest clean piece of ``source`` whose faces lie in ``overlap`` (V_X,) bool.
+
+    ``found_as`` says in the message how ``overlap`` was found.
 
     Raises
     ------
@@ -112,8 +116,8 @@ def overlap_part(source: Mesh, overlap: np.ndarray) -> PartialShape:
     share = source.face_areas[keep_faces].sum() / source.area
     if share < LEAST_OVERLAP:
         raise MeshError(
-            f"{source.name}: no overlap with the target found ({100 * share:.1f} % of its area has "
-            "descriptors that match back to themselves); check that both scans show one surface in one unit"
+            f"{source.name}: no overlap with the target found ({100 * share:.1f} % of its area {found_as}); "
+            "check that both scans show one surface in one unit"
         )
     return kept_part(source, keep_faces, f"{source.name}-overlap", "overlap")
 
