@@ -541,22 +541,11 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING)
     folder = ShapeFolder(args.data)
     manifest = part_manifest(args.parts)
-    runs = partial_to_full_runs(manifest, args.pairs, folder)
     if args.mode == "both":  # each part of a against each part of b: two scans of two people
-        runs = [
-            (row["part"], other["part"])
-            for a, b in read_pairs_file(args.pairs, folder.names)
-            for row in manifest
-            if row["shape"] == a
-            for other in manifest
-            if other["shape"] == b
-        ]
-    runs = list(dict.fromkeys(runs))
-    if args.mode == "both" and args.min_overlap > 0:  # pairs of scans that share little are left out
-        runs = [run for run in runs if min(overlap_shares(args.parts, folder, run)) >= args.min_overlap]
-    if args.runs:
-        first, stop = (int(text) for text in args.runs.split(":"))
-        runs = runs[first:stop]
+        runs = overlap_runs(manifest, args, folder)
+    else:
+        runs = list(dict.fromkeys(partial_to_full_runs(manifest, args.pairs, folder)))
+    runs = runs_slice(runs, args.runs)
     extractor = "wks" if args.checkpoint == "wks" else network_extractor(args.checkpoint)
     args.second_network = network_extractor(args.second_opinion) if args.second_opinion else None
     columns = OVERLAP_COLUMNS if args.mode == "both" else COLUMNS
@@ -569,6 +558,31 @@ def main(argv: list[str] | None = None) -> int:
         args.out,
     )
     return 0
+
+
+def overlap_runs(manifest: list[dict], args: argparse.Namespace, folder: ShapeFolder) -> list[tuple]:
+    """(part, part) runs of ``--mode both``: each part of a against each part of b, for every pair
+    (a, b) of ``args.pairs``, kept when each part truly shares at least ``args.min_overlap``."""
+    runs = [
+        (row["part"], other["part"])
+        for a, b in read_pairs_file(args.pairs, folder.names)
+        for row in manifest
+        if row["shape"] == a
+        for other in manifest
+        if other["shape"] == b
+    ]
+    runs = list(dict.fromkeys(runs))
+    if args.min_overlap > 0:  # pairs of scans that share little are left out
+        runs = [run for run in runs if min(overlap_shares(args.parts, folder, run)) >= args.min_overlap]
+    return runs
+
+
+def runs_slice(runs: list, text: str | None) -> list:
+    """``runs[first:stop]`` for ``text`` "FIRST:STOP"; all of them for None."""
+    if not text:
+        return runs
+    first, stop = (int(part) for part in text.split(":"))
+    return runs[first:stop]
 
 
 def run_and_write(runs: list[tuple[str, str]], run_one, columns: tuple, summarise, out: Path) -> list[dict]:
