@@ -5,7 +5,8 @@ of the other shape of its pair that truly share at least ``--min-overlap`` of ea
 the features are computed once, as ``spidermatch.match(..., partial="both")`` computes them, and
 the source overlap is found by the descriptors' cycle consistency
 (:func:`spidermatch.geometry.overlap.estimated_overlap`) and by the matching with a void vertex
-(:func:`spidermatch.overlap_solve.matched_overlap`) for each ``--void-factors`` value. Per run and
+(:func:`spidermatch.overlap_solve.matched_overlap`) for each ``--void-factors`` value, with the
+void cheaper outside the estimate by each ``--outside-weights`` value (1: the same). Per run and
 method: the area-weighted IoU, precision and recall of the region (before its largest clean piece
 is taken) against the true overlap, and for the matching its status, gap and solve time. No
 second solve, no dense map: this measures only the step that chooses what is matched::
@@ -72,13 +73,16 @@ def overlap_rows(names: tuple[str, str], parts: Path, folder: ShapeFolder, args,
     rows = [{**names_of, "method": "features", **region_scores(areas, estimate, truth)}]
     settings = MatchSettings(resolution=args.faces, solver=SolverOptions(time_limit=args.time_limit))
     for factor in args.void_factors:
-        started = time.perf_counter()
-        found = matched_overlap(source, target, feat_x, feat_y, settings, factor)
-        row = {**names_of, "method": f"matched {factor:g}", **found.summary()}
-        row["total_s"] = round(time.perf_counter() - started, 1)
-        if found.region is not None:
-            row.update(region_scores(areas, found.region, truth))
-        rows.append(row)
+        for weight in args.outside_weights:  # 1: the estimate plays no part
+            started = time.perf_counter()
+            prior = None if weight == 1 else estimate
+            found = matched_overlap(source, target, feat_x, feat_y, settings, factor, prior, weight)
+            method = f"matched {factor:g}" + ("" if prior is None else f" outside {weight:g}")
+            row = {**names_of, "method": method, **found.summary()}
+            row["total_s"] = round(time.perf_counter() - started, 1)
+            if found.region is not None:
+                row.update(region_scores(areas, found.region, truth))
+            rows.append(row)
     return rows
 
 
@@ -107,6 +111,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_part_options(parser, "a trained network, or 'wks' for WKS descriptors")
     parser.add_argument("--void-factors", nargs="+", type=float, default=[2.0])
+    parser.add_argument(
+        "--outside-weights",
+        nargs="+",
+        type=float,
+        default=[1.0],
+        help="the void's cost outside the descriptors' estimate, as a share of lambda (1: no estimate)",
+    )
     parser.add_argument("--min-overlap", type=float, default=0.3)
     parser.add_argument("--faces", type=int, default=1000)
     parser.add_argument("--time-limit", type=float, default=120.0)

@@ -777,8 +777,9 @@ def source_overlap_piece(
     feat_x : np.ndarray, shape (V_X, D)
     feat_y : np.ndarray, shape (V_Y, D)
     method : str
-        One of :data:`OVERLAP_METHODS`. A "matched" solve that ends without a matching falls
-        back to "features", logged.
+        One of :data:`OVERLAP_METHODS`. "matched" solves with the void cheaper outside the
+        descriptors' estimate (:func:`~spidermatch.overlap_solve.matched_overlap`); a solve that
+        ends without a matching falls back to the estimate, logged.
     settings : spidermatch.pipeline.MatchSettings, optional
         The match's settings, for the "matched" solve.
 
@@ -798,21 +799,20 @@ def source_overlap_piece(
     from spidermatch.model.costs import unit_rows
 
     check_overlap_method(method, "overlap_method")
-    region, record, found_as = None, {"method": "features"}, ""
-    if method == "matched":
+    unit_length = float(np.sqrt(max(source.area, target.area)))
+    region = estimated_overlap(source, target, unit_rows(feat_x), unit_rows(feat_y), unit_length)
+    record, found_as = {"method": "features"}, "has descriptors that match back to themselves"
+    if method == "matched":  # the estimate makes the void cheaper where it sees no partner
         from spidermatch.overlap_solve import matched_overlap
         from spidermatch.pipeline import MatchSettings
 
-        found = matched_overlap(source, target, feat_x, feat_y, settings or MatchSettings())
-        region, record = found.region, {"method": "matched", **found.summary()}
-        found_as = "was matched to the target, the rest to the void"
-        if region is None:
-            logger.warning("no overlap matched in time: estimated from the descriptors instead")
+        found = matched_overlap(source, target, feat_x, feat_y, settings or MatchSettings(), estimate=region)
+        record = {"method": "matched", **found.summary()}
+        if found.region is None:
+            logger.warning("no overlap matched in time: the descriptors' estimate is matched instead")
             record["fallback"] = "features"
-    if region is None:
-        unit_length = float(np.sqrt(max(source.area, target.area)))
-        region = estimated_overlap(source, target, unit_rows(feat_x), unit_rows(feat_y), unit_length)
-        found_as = "has descriptors that match back to themselves"
+        else:
+            region, found_as = found.region, "was matched to the target, the rest to the void"
     piece = overlap_part(source, region, found_as)
     logger.info(
         "%s: matching its overlap with %s, %d of %d vertices (%.0f %% of its area)",

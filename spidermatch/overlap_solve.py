@@ -67,6 +67,8 @@ def matched_overlap(
     target_features: np.ndarray,
     settings: MatchSettings,
     void_factor: float | None = None,
+    estimate: np.ndarray | None = None,
+    outside_weight: float | None = None,
 ) -> MatchedOverlap:
     """Solve the ILP of all of ``source`` onto ``target`` with a void vertex; the source it matches.
 
@@ -82,14 +84,20 @@ def matched_overlap(
     void_factor : float, optional
         :func:`spidermatch.model.void.void_cost`'s factor (default
         :data:`spidermatch.model.void.VOID_FACTOR`).
+    estimate : np.ndarray, shape (V_X,), bool, optional
+        An estimate of the overlap (:func:`~spidermatch.geometry.overlap.estimated_overlap`): the
+        void costs ``outside_weight`` times as much at the source vertices outside it (default
+        :data:`spidermatch.model.void.OUTSIDE_WEIGHT`). None: the same everywhere.
 
     """
     void_factor = void.VOID_FACTOR if void_factor is None else void_factor
+    outside_weight = void.OUTSIDE_WEIGHT if outside_weight is None else outside_weight
+    weights = None if estimate is None else np.where(np.asarray(estimate, dtype=bool), 1.0, outside_weight)
     tour = TOURS[0] if settings.curve_tour == AUTO_TOUR else settings.curve_tour
     settings = strategy_resolved(dataclasses.replace(settings, partial=True, dense=None, curve_tour=tour))
     closed = closed_copies(source, target, settings)
     low_x, _, curve, graph, model = prepare(
-        source, target, source_features, target_features, settings, {}, closed, void_factor=void_factor
+        source, target, source_features, target_features, settings, {}, closed, void_factor, weights
     )
     void_vertex = graph.n_target - 1  # with_void appends it
     solved = _solved(model, graph, curve, settings)

@@ -328,6 +328,7 @@ def prepare(
     timings: dict,
     closed: tuple | None = None,
     void_factor: float | None = None,
+    void_weights: np.ndarray | None = None,
 ) -> tuple[Decimated, Decimated, SpiderCurve, ProductGraph, IlpModel | LazyModel]:
     """Decimate, trace the curve, build the product graph, the costs and the ILP.
 
@@ -336,7 +337,8 @@ def prepare(
     meshes' copies with small holes closed (:func:`closed_copies`, computed when not given);
     a mesh that has one is matched on it, its decimated vertices mapped to given vertices only.
     ``void_factor``: the target graph gets a void vertex (:mod:`spidermatch.model.void`) of
-    that cost factor, index ``low_y.mesh.n_verts``; None: the plain target.
+    that cost factor, index ``low_y.mesh.n_verts``; None: the plain target. ``void_weights``
+    (V_X,): per source vertex, a multiplier of the void's cost (None: 1 everywhere).
     """
     settings = strategy_resolved(settings)
     _check_features(source, source_features, "source")
@@ -374,20 +376,18 @@ def prepare(
         )
         target_verts, crossing, void = low_y.mesh.verts * length_scale(target), None, None
         if void_factor is not None:
-            augmented = with_void(
-                target_verts,
-                boundary_vertices(low_y.mesh.faces),
-                vertex_costs,
-                void_cost(vertex_costs, void_factor),
+            cost = void_cost(vertex_costs, void_factor)
+            logger.info(
+                "void vertex: cost %.4g (%.3g x the median cheapest)%s",
+                cost,
+                void_factor,
+                "" if void_weights is None else ", weighted per source vertex",
             )
+            if void_weights is not None:
+                cost = cost * np.asarray(void_weights, dtype=np.float64)[low_x.to_full]
+            augmented = with_void(target_verts, boundary_vertices(low_y.mesh.faces), vertex_costs, cost)
             target_verts, vertex_costs = augmented.verts, augmented.vertex_costs
             crossing, void = augmented.crossing_edges, augmented.void
-            logger.info(
-                "void vertex: %d target boundary vertices, cost %.4g (%.3g x the median cheapest)",
-                len(crossing),
-                augmented.cost,
-                void_factor,
-            )
         graph = build_product_graph(curve.length, target_verts.shape[0], edges_y, crossing)
         lazy = LazyModel(
             graph,

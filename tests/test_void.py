@@ -105,3 +105,12 @@ def test_the_void_cost_follows_the_cheapest_partners():
     assert void_cost(costs, 2.0) == pytest.approx(2.0 * 1.0)  # median of 1, 0.5, 4
     with pytest.raises(ValueError, match="positive"):
         void_cost(costs, 0.0)
+
+
+def test_the_void_cost_may_differ_per_source_vertex():
+    costs = np.arange(6.0).reshape(3, 2)
+    per_vertex = with_void(np.zeros((2, 3)), np.array([0]), costs, np.array([1.0, 2.0, 3.0]))
+    np.testing.assert_array_equal(per_vertex.vertex_costs[:, 2], [1.0, 2.0, 3.0])
+    everywhere = with_void(np.zeros((2, 3)), np.array([0]), costs, 0.5)
+    np.testing.assert_array_equal(everywhere.vertex_costs[:, 2], 0.5)
+    np.testing.assert_array_equal(everywhere.vertex_costs[:, :2], costs)

@@ -31,8 +31,11 @@ import numpy as np
 
 from spidermatch.model.product_graph import ProductGraph
 
-VOID_FACTOR = 2.0
+VOID_FACTOR = 8.0
 """The void cost lambda in units of the median over source vertices of their cheapest R[p, :]."""
+
+OUTSIDE_WEIGHT = 0.1
+"""With an estimate of the overlap: the void's cost outside it, as a share of lambda."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,13 +48,11 @@ class VoidTarget:
         The target's vertices, then the void's (a placeholder at the origin: no length is
         measured to it).
     vertex_costs : np.ndarray, shape (V_X, V_Y + 1)
-        R with the void's column, lambda everywhere.
+        R with the void's column (lambda).
     crossing_edges : np.ndarray, shape (n_boundary, 2)
         (boundary vertex, void) pairs, taken only while the curve advances.
     void : int
         The void's index, V_Y.
-    cost : float
-        lambda.
 
     """
 
@@ -59,7 +60,6 @@ class VoidTarget:
     vertex_costs: np.ndarray
     crossing_edges: np.ndarray
     void: int
-    cost: float
 
     @property
     def n_target(self) -> int:
@@ -80,20 +80,20 @@ def void_cost(vertex_costs: np.ndarray, factor: float = VOID_FACTOR) -> float:
     return float(factor * max(np.median(cheapest), np.finfo(float).tiny))
 
 
-def with_void(
-    target_verts: np.ndarray, boundary: np.ndarray, vertex_costs: np.ndarray, cost: float
-) -> VoidTarget:
+def with_void(target_verts: np.ndarray, boundary: np.ndarray, vertex_costs: np.ndarray, cost) -> VoidTarget:
     """The target of ``target_verts`` (V_Y, 3) with a void vertex joined to ``boundary`` (n_b,).
 
-    ``vertex_costs`` (V_X, V_Y) gets the void's column, ``cost`` (lambda) for every source vertex.
+    ``vertex_costs`` (V_X, V_Y) gets the void's column: ``cost`` (lambda), a float for every
+    source vertex or one per source vertex (V_X,).
     """
     target_verts = np.asarray(target_verts, dtype=np.float64)
     void = target_verts.shape[0]
     verts = np.vstack([target_verts, np.zeros((1, 3))])
-    costs = np.hstack([vertex_costs, np.full((vertex_costs.shape[0], 1), float(cost))])
+    column = np.broadcast_to(np.asarray(cost, dtype=np.float64), (vertex_costs.shape[0],))
+    costs = np.hstack([vertex_costs, column[:, None]])
     boundary = np.asarray(boundary, dtype=np.int64)
     edges = np.column_stack([boundary, np.full(boundary.size, void, dtype=np.int64)])
-    return VoidTarget(verts, costs, edges, void, float(cost))
+    return VoidTarget(verts, costs, edges, void)
 
 
 def void_layers(graph: ProductGraph, x: np.ndarray, void: int, tolerance: float = 0.5) -> np.ndarray:
