@@ -266,8 +266,11 @@ def _smooth_position_code(verts: np.ndarray, dims: int = 64, seed: int = 0) -> n
     return np.cos(verts @ frequencies + rng.uniform(0, 2 * np.pi, dims))
 
 
-def test_two_overlapping_parts_are_matched_on_their_overlap_only(creature):
-    """Two cuts of one shape from opposite sides share a band: only it is matched, by the identity."""
+def _band_parts_matched(creature, overlap_method: str):
+    """Two cuts of ``creature`` from opposite sides (sharing a band) matched with ``partial="both"``.
+
+    Returns the two parts, the matching and the true source overlap (V_lower,) bool.
+    """
     normal = np.array([0.0, 1.0, 0.3])
     lower = plane_cut(creature, normal, 0.65, "lower")
     upper = plane_cut(creature, -normal, 0.65, "upper")
@@ -279,11 +282,17 @@ def test_two_overlapping_parts_are_matched_on_their_overlap_only(creature):
         resolution=300,
         time_limit=600,
         partial="both",
+        overlap_method=overlap_method,
     )
-    assert result.details.pair.mode == "overlap" and result.status == "optimal"
     in_upper = np.zeros(creature.n_verts, dtype=bool)
     in_upper[upper.to_original] = True
-    truth = in_upper[lower.to_original]
+    return lower, upper, result, in_upper[lower.to_original]
+
+
+def test_two_overlapping_parts_are_matched_on_their_overlap_only(creature):
+    """Two cuts of one shape from opposite sides share a band: only it is matched, by the identity."""
+    lower, upper, result, truth = _band_parts_matched(creature, "features")
+    assert result.details.pair.mode == "overlap" and result.status == "optimal"
     found = result.source_overlap
     areas = lower.mesh.vertex_areas
     assert areas[found & truth].sum() / areas[found | truth].sum() > 0.65  # the whole part scores 0.51
@@ -301,26 +310,11 @@ def test_two_overlapping_parts_are_matched_on_their_overlap_only(creature):
 
 def test_the_overlap_matched_with_a_void_vertex_is_closer_to_the_truth_than_the_estimate(creature):
     """The certified matching of all of one part decides its overlap: the band both cuts share."""
-    normal = np.array([0.0, 1.0, 0.3])
-    lower = plane_cut(creature, normal, 0.65, "lower")
-    upper = plane_cut(creature, -normal, 0.65, "upper")
-    code = _smooth_position_code(creature.verts)
-    result = spidermatch.match(
-        lower.mesh,
-        upper.mesh,
-        features=(code[lower.to_original], code[upper.to_original]),
-        resolution=300,
-        time_limit=600,
-        partial="both",
-        overlap_method="matched",
-    )
+    lower, upper, result, truth = _band_parts_matched(creature, "matched")
     found_by = result.details.overlap_found
     assert found_by["method"] == "matched" and found_by["status"] == "optimal", found_by
     assert 0.3 < found_by["void_share"] < 0.7
     assert result.status == "optimal"
-    in_upper = np.zeros(creature.n_verts, dtype=bool)
-    in_upper[upper.to_original] = True
-    truth = in_upper[lower.to_original]
     found, areas = result.source_overlap, lower.mesh.vertex_areas
     assert areas[found & truth].sum() / areas[found | truth].sum() > 0.8  # 0.68 by the descriptors' estimate
     assert areas[found & truth].sum() / areas[found].sum() > 0.9  # little matched without a partner
