@@ -11,16 +11,17 @@ only where the target ends, which is where a surface the source still shows has 
 
 Costs, with R the feature cost matrix and lambda the void cost (method.md 4 otherwise):
 
-- R[p, void] = lambda for every source vertex p: a curve step of length |dx| spent in the void
-  costs 2 lambda |dx|, a matched one about sqrt(|dx|^2 + |dy|^2) (R[p, a] + R[q, b]).
+- R[p, void] = lambda_p (one lambda for every source vertex, or one per vertex): a curve step of
+  length |dx| spent in the void costs (lambda_p + lambda_q) |dx|, a matched one about
+  sqrt(|dx|^2 + |dy|^2) (R[p, a] + R[q, b]).
 - An edge into or out of the void has no target length (it is no step on the target).
 - No ANS row counts the void: any number of curve vertices may have no partner.
 
 CYC, CON and PES are unchanged: a self-intersection of the curve is matched to one target
 vertex or to the void on both of its passes. The all-void path (every layer at the void) is a
-closed path of cost 2 lambda times the curve length: "nothing overlaps". The solve certifies the
-matching and the overlap together: no consistent matching of some of the source onto the target,
-with the rest in the void, is cheaper for these costs.
+closed path (of cost 2 lambda times the curve length for one lambda): "nothing overlaps". The
+solve certifies the matching and the overlap together: no consistent matching of some of the
+source onto the target, with the rest in the void, is cheaper for these costs.
 """
 
 from __future__ import annotations
