@@ -32,6 +32,7 @@ import numpy as np
 from bench_partial import (
     add_part_options,
     apply_part_search_options,
+    area_iou,
     network_extractor,
     overlap_runs,
     part_manifest,
@@ -40,10 +41,8 @@ from bench_partial import (
 )
 from bench_scaling import format_row, write_rows
 
-from spidermatch.api import pair_features
+from spidermatch.api import descriptor_overlap, pair_features
 from spidermatch.data.datasets import ShapeFolder
-from spidermatch.geometry.overlap import estimated_overlap
-from spidermatch.model.costs import unit_rows
 from spidermatch.overlap_solve import matched_overlap
 from spidermatch.pipeline import MatchSettings
 from spidermatch.solve.types import SolverOptions
@@ -51,11 +50,12 @@ from spidermatch.solve.types import SolverOptions
 COLUMNS = ("part", "target", "method", "iou", "precision", "recall", "status", "gap", "solve_s", "void_share")
 
 
-def region_scores(areas: np.ndarray, region: np.ndarray, truth: np.ndarray) -> dict:
-    """Area-weighted IoU, precision and recall of ``region`` against ``truth``, each (V,) bool."""
+def region_scores(mesh, region: np.ndarray, truth: np.ndarray) -> dict:
+    """Area-weighted IoU, precision and recall of ``region`` against ``truth``, each (V,) bool on ``mesh``."""
+    areas = mesh.vertex_areas
     both = areas[region & truth].sum()
     return {
-        "iou": round(float(both / max(areas[region | truth].sum(), 1e-30)), 4),
+        "iou": round(area_iou(mesh, region, truth), 4),
         "precision": round(float(both / max(areas[region].sum(), 1e-30)), 4),
         "recall": round(float(both / max(areas[truth].sum(), 1e-30)), 4),
     }
@@ -66,11 +66,10 @@ def overlap_rows(names: tuple[str, str], parts: Path, folder: ShapeFolder, args,
     pair = part_pair(parts, folder, names)
     source, target = pair.meshes
     feat_x, feat_y, _ = pair_features(extractor, source, target, overlap=True)
-    areas, truth = source.vertex_areas, pair.truths[0]
-    unit_length = float(np.sqrt(max(source.area, target.area)))
-    estimate = estimated_overlap(source, target, unit_rows(feat_x), unit_rows(feat_y), unit_length)
+    truth = pair.truths[0]
+    estimate = descriptor_overlap(source, target, feat_x, feat_y)
     names_of = {"part": names[0], "target": names[1]}
-    rows = [{**names_of, "method": "features", **region_scores(areas, estimate, truth)}]
+    rows = [{**names_of, "method": "features", **region_scores(source, estimate, truth)}]
     settings = MatchSettings(resolution=args.faces, solver=SolverOptions(time_limit=args.time_limit))
     for factor in args.void_factors:
         for weight in args.outside_weights:  # 1: the estimate plays no part
@@ -81,7 +80,7 @@ def overlap_rows(names: tuple[str, str], parts: Path, folder: ShapeFolder, args,
             row = {**names_of, "method": method, **found.summary()}
             row["total_s"] = round(time.perf_counter() - started, 1)
             if found.region is not None:
-                row.update(region_scores(areas, found.region, truth))
+                row.update(region_scores(source, found.region, truth))
             rows.append(row)
     return rows
 

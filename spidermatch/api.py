@@ -761,6 +761,18 @@ def check_overlap_method(method: str, keyword: str) -> None:
         raise ValueError(f"{keyword}={method!r}: choose from {', '.join(map(repr, OVERLAP_METHODS))}")
 
 
+def descriptor_overlap(source: Mesh, target: Mesh, feat_x: np.ndarray, feat_y: np.ndarray) -> np.ndarray:
+    """:func:`~spidermatch.geometry.overlap.estimated_overlap` of two parts in one unit, (V_X,) bool.
+
+    The features (V_X, D) and (V_Y, D) are taken as given (normalised here); lengths are in the
+    larger part's sqrt(area).
+    """
+    from spidermatch.model.costs import unit_rows
+
+    unit_length = float(np.sqrt(max(source.area, target.area)))
+    return estimated_overlap(source, target, unit_rows(feat_x), unit_rows(feat_y), unit_length)
+
+
 def source_overlap_piece(
     source: Mesh,
     target: Mesh,
@@ -796,11 +808,8 @@ def source_overlap_piece(
         No overlap found.
 
     """
-    from spidermatch.model.costs import unit_rows
-
     check_overlap_method(method, "overlap_method")
-    unit_length = float(np.sqrt(max(source.area, target.area)))
-    region = estimated_overlap(source, target, unit_rows(feat_x), unit_rows(feat_y), unit_length)
+    region = descriptor_overlap(source, target, feat_x, feat_y)
     record, found_as = {"method": "features"}, "has descriptors that match back to themselves"
     if method == "matched":  # the estimate makes the void cheaper where it sees no partner
         from spidermatch.overlap_solve import matched_overlap

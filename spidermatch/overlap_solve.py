@@ -15,9 +15,9 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from spidermatch.geometry.mesh import Mesh
+from spidermatch.geometry.remesh import nearest_vertices
 from spidermatch.model import void
 from spidermatch.model.curve import AUTO_TOUR, TOURS
 from spidermatch.model.void import matched_curve_vertices, void_layers
@@ -106,8 +106,7 @@ def matched_overlap(
         return MatchedOverlap(None, dataclasses.replace(solved, x=None), float("nan"))
     in_void = void_layers(graph, solved.x, void_vertex)
     matched_low = matched_curve_vertices(curve.vertices, in_void, low_x.mesh.n_verts)
-    nearest = cKDTree(source.verts[low_x.to_full]).query(source.verts)[1]
-    region = matched_low[nearest]
+    region = matched_low[nearest_vertices(source.verts[low_x.to_full], source.verts)]
     logger.info(
         "overlap matched: %.0f %% of the curve in the void, %.0f %% of %s's area matched (%s)",
         100 * in_void.mean(),
