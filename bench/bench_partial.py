@@ -62,6 +62,7 @@ COLUMNS = (
 BAD_ERROR = 0.1  # a dense error above this is a wrong map (a misplaced or mirrored part)
 OVERLAP_COLUMNS = (*COLUMNS, "source_iou", "overlap_mapped")
 OVERLAP_COLUMNS += ("overlap_status", "void_share", "overlap_solve_s")  # --overlap-method matched
+OVERLAP_COLUMNS += ("turned_degrees",)  # --turn-parts
 
 
 def true_overlap(target: Mesh, target_corr: np.ndarray, kept_rows: np.ndarray) -> np.ndarray:
@@ -122,7 +123,7 @@ def part_against_whole(
     if scan_seed is not None:
         names = (part_name, target_name)
         rng = np.random.default_rng([scan_seed, *(zlib.crc32(name.encode()) for name in names)])
-        part, position = scanned_part(whole.mesh, position, rng, part.name)
+        part, position, _ = scanned_part(whole.mesh, position, rng, part.name)
         target = Shape(target.name, scan_copy(target.mesh, SCAN_SUBDIVISIONS, rng), target.corr)
         row["scan_vertices"] = f"{part.n_verts}/{target.mesh.n_verts}"
         kept = int((position[whole.corr] >= 0).sum())
@@ -160,7 +161,7 @@ SCAN_SUBDIVISIONS = 2
 
 def scanned_part(
     whole: Mesh, position: np.ndarray, rng: np.random.Generator, name: str
-) -> tuple[Mesh, np.ndarray]:
+) -> tuple[Mesh, np.ndarray, np.ndarray]:
     """The part's region cut from a dense noisy scan of its whole, as a raw partial scan arrives.
 
     The whole is Loop-subdivided ``SCAN_SUBDIVISIONS`` times with noise along the normals
@@ -176,6 +177,9 @@ def scanned_part(
         The scanned part, named ``name``.
     position : np.ndarray, shape (V_whole,)
         Part vertex of each original vertex of the whole, -1 where cut away.
+    to_whole : np.ndarray, shape (V_part,)
+        The original vertex of the whole nearest to each vertex of the scanned part (itself for
+        an original vertex).
     """
     scan = scan_copy(whole, SCAN_SUBDIVISIONS, rng)
     owner = cKDTree(whole.verts).query(scan.verts)[1]
@@ -184,7 +188,7 @@ def scanned_part(
     scanned_position = -np.ones(whole.n_verts, dtype=np.int64)
     originals = piece.to_original < whole.n_verts
     scanned_position[piece.to_original[originals]] = np.flatnonzero(originals)
-    return piece.mesh, scanned_position
+    return piece.mesh, scanned_position, owner[piece.to_original]
 
 
 def run_pair(part_name: str, parts: Path, folder: ShapeFolder, target_name: str, args, extractor) -> dict:
@@ -264,8 +268,14 @@ def run_overlap_pair(
 ) -> dict:
     """Match one part to a part of another shape (``partial="both"``) and score both overlaps."""
     pair = part_pair(parts, folder, (part_name, target_part))
-    meshes, wholes, to_original = pair.meshes, pair.wholes, pair.to_original
+    if args.scan_copies is not None:
+        pair = scanned_pair(pair, args.scan_copies)
+    meshes, wholes, to_original = list(pair.meshes), pair.wholes, pair.to_original
     row = {"part": part_name, "target": target_part, "kept_area": pair.kept_area}
+    if args.turn_parts is not None:  # the source as a scanner may give it; the scores read indices only
+        meshes[0], row["turned_degrees"] = turned_copy(meshes[0], args.turn_parts)
+    if args.unit_scale != 1.0:  # both parts in another unit (one unit for the two: a partial pair's rule)
+        meshes = [Mesh(mesh.verts * args.unit_scale, mesh.faces, mesh.name) for mesh in meshes]
     result = _timed_match(meshes[0], meshes[1], args, extractor, "both", row)
     if result.source_overlap is not None:
         row["source_iou"] = round(area_iou(meshes[0], result.source_overlap, pair.truths[0]), 4)
@@ -330,6 +340,21 @@ def part_pair(parts: Path, folder: ShapeFolder, names: tuple[str, str]) -> PartP
     return PartPair(
         list(meshes), list(to_original), list(wholes), list(positions), shared, truths, kept_areas[0]
     )
+
+
+def scanned_pair(pair: PartPair, seed: int) -> PartPair:
+    """Both parts of ``pair`` as raw partial scans give them (:func:`scanned_part`), seeded by ``seed``
+    and the parts' names; each scan vertex stands for its nearest original vertex of its whole."""
+    rng = np.random.default_rng([seed, *(zlib.crc32(mesh.name.encode()) for mesh in pair.meshes)])
+    scans = [
+        scanned_part(whole.mesh, position, rng, mesh.name)
+        for mesh, whole, position in zip(pair.meshes, pair.wholes, pair.positions)
+    ]
+    meshes, positions, to_original = (list(items) for items in zip(*scans))
+    wholes = pair.wholes
+    shared = (positions[0][wholes[0].corr] >= 0) & (positions[1][wholes[1].corr] >= 0)
+    truths = [_part_truth(*items, shared) for items in zip(meshes, wholes, to_original)]
+    return PartPair(meshes, to_original, list(wholes), positions, shared, truths, pair.kept_area)
 
 
 def overlap_shares(parts: Path, folder: ShapeFolder, names: tuple[str, str]) -> tuple[float, float]:
@@ -421,7 +446,8 @@ def add_part_options(parser: argparse.ArgumentParser, checkpoint_help: str) -> N
         metavar="SEED",
         help="match dense noisy scans instead: the part's region cut from its whole Loop-subdivided twice "
         "with noise, against the target scanned the same way (about 80 000 vertices); the dense error "
-        f"on {SCAN_EVAL_POINTS} of the part's reference points",
+        f"on {SCAN_EVAL_POINTS} of the part's reference points (--mode both: both parts scanned so, "
+        "the error at every shared reference point)",
     )
     parser.add_argument(
         "--placed-orientations",
@@ -529,6 +555,13 @@ def main(argv: list[str] | None = None) -> int:
         type=float,
         default=None,
         help="--overlap-method matched: the void's cost factor (spidermatch.model.void.VOID_FACTOR)",
+    )
+    parser.add_argument(
+        "--unit-scale",
+        type=float,
+        default=1.0,
+        metavar="FACTOR",
+        help="--mode both: both parts' coordinates times FACTOR (1000: millimetres, as scanners give them)",
     )
     parser.add_argument("--faces", type=int, default=1000)
     parser.add_argument("--time-limit", type=float, default=120.0)

@@ -141,7 +141,7 @@ def test_a_scanned_part_is_a_clean_cut_of_the_dense_scan_with_its_originals_foun
     whole = make_creature(n_verts=400, seed=2).mesh
     part = plane_cut(whole, np.array([0.0, 1.0, 0.2]), 0.5, "part")
     position = part.positions(whole.n_verts)
-    scanned, scanned_position = scanned_part(whole, position, np.random.default_rng(0), "part")
+    scanned, scanned_position, to_whole = scanned_part(whole, position, np.random.default_rng(0), "part")
     make_mesh(scanned.verts, scanned.faces, "scan")  # one clean manifold piece
     assert scanned.name == "part" and scanned.n_verts > 10 * part.mesh.n_verts  # two Loop subdivisions
     found = scanned_position >= 0
@@ -152,6 +152,9 @@ def test_a_scanned_part_is_a_clean_cut_of_the_dense_scan_with_its_originals_foun
     moved = np.linalg.norm(scanned.verts[scanned_position[found]] - whole.verts[found], axis=1)
     edge = np.linalg.norm(whole.verts[whole.faces[:, 0]] - whole.verts[whole.faces[:, 1]], axis=1).mean()
     assert np.median(moved) < 0.5 * edge
+    # each scan vertex stands for an original vertex of the part near it; the originals for themselves
+    assert to_whole.shape == (scanned.n_verts,) and np.all(position[to_whole] >= 0)
+    assert np.array_equal(to_whole[scanned_position[found]], np.flatnonzero(found))
 
 
 def test_scaling_logs_of_two_flow_row_settings_get_two_names():
@@ -176,3 +179,34 @@ def test_benchmark_results_say_which_software_made_them(tmp_path):
     assert written["software"]["spidermatch"] == spidermatch_version() and written["software"]["highs"]
     assert written["note"] == "n" and written["rows"] == [{"pair": "a:b", "status": "optimal"}]
     assert (tmp_path / "figures.csv").read_text().splitlines() == ["pair,status", "a:b,optimal"]
+
+
+def test_a_scanned_pair_of_parts_keeps_the_truth_told_through_the_originals():
+    """``bench_partial.py --mode both --scan-copies``: each shared reference point is found in both scans."""
+    import numpy as np
+    from bench_partial import PartPair, scanned_pair
+
+    from spidermatch.data.datasets import Shape
+    from spidermatch.data.synthetic import make_creature
+    from spidermatch.geometry.partial import plane_cut
+
+    creature = make_creature(n_verts=400, seed=2).mesh
+    whole = Shape("whole", creature, np.arange(0, creature.n_verts, 3))
+    cuts = [
+        plane_cut(whole.mesh, np.array([0.0, sign, 0.2]), 0.7, f"cut{k}") for k, sign in enumerate((1, -1))
+    ]
+    positions = [cut.positions(whole.mesh.n_verts) for cut in cuts]
+    shared = (positions[0][whole.corr] >= 0) & (positions[1][whole.corr] >= 0)
+    pair = PartPair(
+        [cut.mesh for cut in cuts], [cut.to_original for cut in cuts], [whole, whole], positions, shared,
+        [np.ones(cut.mesh.n_verts, dtype=bool) for cut in cuts], 0.7,
+    )  # fmt: skip
+    scanned = scanned_pair(pair, seed=0)
+    assert scanned.shared.sum() >= 0.8 * shared.sum() and not np.any(scanned.shared & ~shared)
+    for cut, mesh, to_original, position, truth in zip(
+        cuts, scanned.meshes, scanned.to_original, scanned.positions, scanned.truths
+    ):
+        assert mesh.n_verts > 10 * cut.mesh.n_verts  # two Loop subdivisions
+        points = whole.corr[scanned.shared]
+        assert np.array_equal(to_original[position[points]], points)  # each point found as itself
+        assert truth.shape == (mesh.n_verts,) and 0 < truth.sum() < mesh.n_verts
