@@ -525,7 +525,11 @@ def match(
 
     """
     from spidermatch.pipeline import match as run_pipeline
-    from spidermatch.pipeline import matched_with_second_opinion, needs_second_opinion
+    from spidermatch.pipeline import (
+        matched_with_second_opinion,
+        needs_second_opinion,
+        solver_time_left,
+    )
 
     raise_problems([feature_cap_problem(features_max_vertices, "features_max_vertices")])
     source_mesh, repaired, source_weld = mesh_of(source, "source", repair)
@@ -562,6 +566,7 @@ def match(
             source_mesh, target_mesh, feat_x, feat_y, overlap_method, run_settings
         )
         feat_x = feat_x[piece.to_original]
+        run_settings = solver_time_left(run_settings, overlap_record.get("solve_s", 0.0))
     matched_source = source_mesh if piece is None else piece.mesh
     result = run_pipeline(matched_source, target_mesh, feat_x, feat_y, run_settings)
     result.pair = kind
@@ -793,7 +798,10 @@ def source_overlap_piece(
         descriptors' estimate (:func:`~spidermatch.overlap_solve.matched_overlap`); a solve that
         ends without a matching falls back to the estimate, logged.
     settings : spidermatch.pipeline.MatchSettings, optional
-        The match's settings, for the "matched" solve.
+        The match's settings, for the "matched" solve, which takes at most
+        :data:`~spidermatch.pipeline.OVERLAP_SOLVE_SHARE` of the solver's time limit (the
+        piece's solve gets what it leaves: :func:`~spidermatch.pipeline.solver_time_left` with
+        the record's ``solve_s``).
 
     Returns
     -------
@@ -813,9 +821,10 @@ def source_overlap_piece(
     record, found_as = {"method": "features"}, "has descriptors that match back to themselves"
     if method == "matched":  # the estimate makes the void cheaper where it sees no partner
         from spidermatch.overlap_solve import matched_overlap
-        from spidermatch.pipeline import MatchSettings
+        from spidermatch.pipeline import MatchSettings, overlap_solve_settings
 
-        found = matched_overlap(source, target, feat_x, feat_y, settings or MatchSettings(), estimate=region)
+        overlap_settings = overlap_solve_settings(settings or MatchSettings())
+        found = matched_overlap(source, target, feat_x, feat_y, overlap_settings, estimate=region)
         record = {"method": "matched", **found.summary()}
         if found.region is None:
             logger.warning("no overlap matched in time: the descriptors' estimate is matched instead")

@@ -541,6 +541,35 @@ AUTO_TOUR_SHARE = 0.4
 MIN_SECOND_TOUR_S = 10.0
 """The least time left for which ``curve_tour="auto"`` still tries the second tour."""
 
+OVERLAP_SOLVE_SHARE = 0.5
+"""``partial="both"`` with the overlap matched (:mod:`spidermatch.overlap_solve`): the share of the
+solver's time limit the overlap's solve may take; the solve of the piece it finds gets the rest."""
+
+
+def solver_time_left(settings: MatchSettings, used_s: float) -> MatchSettings:
+    """``settings`` whose solver may take what the run's earlier solves left of its time limit.
+
+    ``solver.time_limit`` bounds the solves of one matching together (the overlap's and the
+    piece's of ``partial="both"``), as it bounds both tours of ``curve_tour="auto"``. No limit
+    stays no limit. (A second opinion is a second matching: it gets the whole limit again.)
+
+    Parameters
+    ----------
+    settings : MatchSettings
+    used_s : float
+        Seconds the run's earlier solves took.
+    """
+    limit = settings.solver.time_limit
+    if not math.isfinite(limit):
+        return settings
+    solver = dataclasses.replace(settings.solver, time_limit=max(limit - used_s, 0.0))
+    return dataclasses.replace(settings, solver=solver)
+
+
+def overlap_solve_settings(settings: MatchSettings) -> MatchSettings:
+    """``settings`` for the overlap's solve: :data:`OVERLAP_SOLVE_SHARE` of the solver's time limit."""
+    return solver_time_left(settings, (1.0 - OVERLAP_SOLVE_SHARE) * settings.solver.time_limit)
+
 
 def _prepared_and_solved(
     source: Mesh, target: Mesh, features: tuple, settings: MatchSettings, timings: dict, closed: tuple

@@ -471,3 +471,72 @@ def test_wks_on_a_part_is_warned_about_and_named_when_no_matching_is_found(creat
     with pytest.raises(NoSolutionError) as plain:
         failed.raise_for_status()
     assert "WKS" not in str(plain.value)
+
+
+def test_the_overlap_solve_and_the_piece_solve_share_one_time_limit(creature, monkeypatch):
+    """partial='both' with the overlap matched: two solves, one ``time_limit`` between them."""
+    from spidermatch import overlap_solve, pipeline
+
+    limits, real_overlap, real_match = {}, overlap_solve.matched_overlap, pipeline.match
+
+    def overlap_recorded(source, target, feat_x, feat_y, settings, *args, **kwargs):
+        limits["overlap"] = settings.solver.time_limit
+        found = real_overlap(source, target, feat_x, feat_y, settings, *args, **kwargs)
+        limits["overlap_solve_s"] = found.summary()["solve_s"]
+        return found
+
+    def match_recorded(source, target, feat_x, feat_y, settings, **kwargs):
+        limits["piece"] = settings.solver.time_limit
+        return real_match(source, target, feat_x, feat_y, settings, **kwargs)
+
+    monkeypatch.setattr(overlap_solve, "matched_overlap", overlap_recorded)
+    monkeypatch.setattr(pipeline, "match", match_recorded)
+    normal = np.array([0.0, 1.0, 0.3])
+    lower, upper = plane_cut(creature, normal, 0.65, "lower"), plane_cut(creature, -normal, 0.65, "upper")
+    code = _smooth_position_code(creature.verts)
+    result = spidermatch.match(
+        lower.mesh,
+        upper.mesh,
+        features=(code[lower.to_original], code[upper.to_original]),
+        resolution=100,
+        time_limit=300,
+        partial="both",
+        overlap_method="matched",
+    )
+    assert result.details.overlap_found["method"] == "matched"
+    assert limits["overlap"] == 300 * pipeline.OVERLAP_SOLVE_SHARE
+    assert limits["piece"] == pytest.approx(300 - limits["overlap_solve_s"]) and limits["piece"] < 300
+
+
+def test_the_command_line_gives_the_piece_what_the_overlap_solve_left(tmp_path, creature, monkeypatch):
+    import spidermatch.cli.match as cli_match
+
+    given, real_overlap_inputs, real_match = [], cli_match.overlap_inputs, cli_match.match
+
+    def overlap_took_12_5_s(inputs, feat_x, feat_y, report, method, settings):
+        cut = real_overlap_inputs(inputs, feat_x, feat_y, report, method, settings)
+        report["overlap"]["found_by"]["solve_s"] = 12.5  # as a matched overlap's record says
+        return cut
+
+    def match_recorded(source, target, feat_x, feat_y, settings, **kwargs):
+        given.append(settings.solver.time_limit)
+        return real_match(source, target, feat_x, feat_y, settings, **kwargs)
+
+    monkeypatch.setattr(cli_match, "overlap_inputs", overlap_took_12_5_s)
+    monkeypatch.setattr(cli_match, "match", match_recorded)
+    normal = np.array([0.0, 1.0, 0.3])
+    lower, upper = plane_cut(creature, normal, 0.65, "lower"), plane_cut(creature, -normal, 0.65, "upper")
+    _matched_files(tmp_path, lower.mesh, upper.mesh, "partial=both", "resolution=100", "solver.time_limit=40")
+    assert given == [pytest.approx(27.5)]
+
+
+def test_later_solves_get_what_the_earlier_left_of_the_limit_and_no_limit_stays_none():
+    from spidermatch import pipeline
+
+    settings = pipeline.MatchSettings(solver=pipeline.SolverOptions(time_limit=100.0))
+    assert pipeline.solver_time_left(settings, 30.0).solver.time_limit == 70.0
+    assert pipeline.solver_time_left(settings, 130.0).solver.time_limit == 0.0  # never negative
+    assert pipeline.overlap_solve_settings(settings).solver.time_limit == 100.0 * pipeline.OVERLAP_SOLVE_SHARE
+    unlimited = pipeline.MatchSettings(solver=pipeline.SolverOptions(time_limit=float("inf")))
+    assert pipeline.solver_time_left(unlimited, 1e6).solver.time_limit == float("inf")
+    assert pipeline.overlap_solve_settings(unlimited).solver.time_limit == float("inf")

@@ -38,7 +38,13 @@ from spidermatch.cli.outputs import (
 )
 from spidermatch.cli.second_opinion import Opinion, second_opinion_stage
 from spidermatch.cli.settings import settings_from_config
-from spidermatch.pipeline import MatchError, add_dense_map, match, needs_second_opinion
+from spidermatch.pipeline import (
+    MatchError,
+    add_dense_map,
+    match,
+    needs_second_opinion,
+    solver_time_left,
+)
 from spidermatch.validate import (
     check_options,
 )
@@ -137,6 +143,7 @@ def run_stages(cfg, output_dir: Path, report: dict, getters: tuple) -> int:
     if inputs.overlap:  # partial=both: only the source's overlap with the target is matched
         method = cfg.get("partial_overlap", "features")
         inputs, feat_x = overlap_inputs(inputs, feat_x, feat_y, report, method, settings)
+        settings = solver_time_left(settings, report["overlap"]["found_by"].get("solve_s", 0.0))
     logger.info("solving strategy: %s", settings.strategy)
     result = match(
         inputs.source,
