@@ -92,3 +92,22 @@ def test_few_distinct_targets_are_told_a_collapse_or_a_source_pressed_together_b
     assert stay["verdict"] == "suspect"
     assert "the dense map covers 5% of the source's area: the matching collapses" in stay["reasons"][0]
     assert "(e.g. the trivial stay path)" in judge(figures)["reasons"][0]  # no dense map
+
+
+def test_a_raw_scan_s_dense_map_is_judged_on_decimated_copies(parts, monkeypatch):
+    """Meshes over DENSE_DISTORTION_MAX_VERTICES (raw scans) get their dense figure on decimated copies
+    (before, none: a wrong map laid across a target with boundaries was called plausible, unjudged)."""
+    from spidermatch.eval import quality
+
+    source, target, right, wrong = parts
+    monkeypatch.setattr(quality, "DENSE_DISTORTION_MAX_VERTICES", source.n_verts // 2)
+    monkeypatch.setattr(quality, "DENSE_DISTORTION_COPY_FACES", source.n_faces // 3)
+    low_source, low_target, low_map = quality.distortion_meshes(source, target, right)
+    assert low_source.n_faces < source.n_faces / 2 and low_target.n_faces < target.n_faces / 2
+    assert low_map.shape == (low_source.n_verts,) and low_map.max() < low_target.n_verts
+    plausible = _verdict(source, target, right)
+    assert plausible["dense_distortion"] is not None
+    assert plausible["verdict"] == "plausible" and plausible["unjudged"] == []
+    suspect = _verdict(source, target, wrong)
+    assert suspect["verdict"] == "suspect"
+    assert any("even where the boundaries could explain it" in reason for reason in suspect["reasons"])

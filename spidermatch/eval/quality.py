@@ -97,8 +97,13 @@ covered 0.35-1.19 were 31 wrong, 4 in between and 5 right maps (a piece much of 
 partner is pressed together; docs/partial.md), so both stay suspect, with their own reason."""
 
 DENSE_DISTORTION_MAX_VERTICES = 50_000
-"""Meshes up to this size get ``dense_distortion`` (heat-method geodesics on both: about 1 s
-at 20 000 vertices, 8 s at 80 000, one thread); larger ones are judged at low resolution."""
+"""Meshes up to this size get ``dense_distortion`` on themselves (heat-method geodesics on both:
+about 1 s at 20 000 vertices, 8 s at 80 000, one thread); larger ones (a raw scan) on copies
+decimated to :data:`DENSE_DISTORTION_COPY_FACES` faces."""
+
+DENSE_DISTORTION_COPY_FACES = 40_000
+"""Faces of the copies a mesh over :data:`DENSE_DISTORTION_MAX_VERTICES` vertices is decimated to
+for ``dense_distortion`` (about 20 000 vertices)."""
 
 
 def assess(low_source: Mesh, low_target: Mesh, low_map: np.ndarray, gap: float | None) -> dict:
@@ -265,22 +270,57 @@ def dense_mirror(source: Mesh, target: Mesh, face: np.ndarray, bary: np.ndarray)
 def dense_figures(source: Mesh, target: Mesh, dense_map, covered_area: float | None = None) -> dict:
     """``dense_mirror`` and ``dense_distortion`` of a dense map (``spidermatch.dense.maps.DenseMap``).
 
-    The same figures as ``mirror`` and ``distortion``, on the full-resolution meshes; the
-    distortion where the meshes have at most :data:`DENSE_DISTORTION_MAX_VERTICES` vertices
-    each (else None), on a target with boundaries measured around them (:func:`distortion`'s
-    ``around_boundaries``; ``dense_distortion_around_boundaries`` says so). On such a target a
-    partial map's ``covered_area`` (:func:`covered_share`) becomes ``dense_covered``
-    (:data:`DENSE_COVERED_COLLAPSE`); None elsewhere.
+    The same figures as ``mirror`` and ``distortion``, on the full-resolution meshes (the
+    distortion, of meshes over :data:`DENSE_DISTORTION_MAX_VERTICES` vertices, on decimated
+    copies: :func:`distortion_meshes`), on a target with boundaries measured around them
+    (:func:`distortion`'s ``around_boundaries``; ``dense_distortion_around_boundaries`` says so).
+    On such a target a partial map's ``covered_area`` (:func:`covered_share`) becomes
+    ``dense_covered`` (:data:`DENSE_COVERED_COLLAPSE`); None elsewhere.
     """
-    small = max(source.n_verts, target.n_verts) <= DENSE_DISTORTION_MAX_VERTICES
     open_target = boundary_vertices(target.faces).size > 0
-    measured = distortion(source, target, dense_map.vertex, around_boundaries=open_target) if small else None
+    measured = distortion(*distortion_meshes(source, target, dense_map.vertex), around_boundaries=open_target)
     return {
         "dense_mirror": round(dense_mirror(source, target, dense_map.face, dense_map.bary), 4),
-        "dense_distortion": None if measured is None else round(measured, 4),
+        "dense_distortion": round(measured, 4),
         "dense_distortion_around_boundaries": open_target,
         "dense_covered": round(covered_area, 4) if open_target and covered_area is not None else None,
     }
+
+
+def distortion_meshes(source: Mesh, target: Mesh, vertex_map: np.ndarray) -> tuple[Mesh, Mesh, np.ndarray]:
+    """The meshes and vertex map a dense map's ``dense_distortion`` is measured on.
+
+    As given when neither mesh has more than :data:`DENSE_DISTORTION_MAX_VERTICES` vertices;
+    else each larger mesh decimated to :data:`DENSE_DISTORTION_COPY_FACES` faces, a copy's
+    vertex standing for the full vertex it came from and an image for the copy's vertex
+    nearest to it, so that a raw scan's map is judged as a template's is.
+
+    Parameters
+    ----------
+    source, target : Mesh
+        V_X and V_Y vertices.
+    vertex_map : np.ndarray, shape (V_X,)
+        Target vertex of each source vertex.
+
+    Returns
+    -------
+    source, target : Mesh
+        The meshes measured (V_x and V_y vertices).
+    vertex_map : np.ndarray, shape (V_x,)
+    """
+    from spidermatch.geometry.remesh import decimate, nearest_vertices
+
+    vertex_map = np.asarray(vertex_map, dtype=np.int64)
+    if max(source.n_verts, target.n_verts) <= DENSE_DISTORTION_MAX_VERTICES:
+        return source, target, vertex_map
+    if source.n_verts > DENSE_DISTORTION_MAX_VERTICES:
+        low = decimate(source, DENSE_DISTORTION_COPY_FACES)
+        source, vertex_map = low.mesh, vertex_map[low.to_full]
+    if target.n_verts > DENSE_DISTORTION_MAX_VERTICES:
+        low_target = decimate(target, DENSE_DISTORTION_COPY_FACES).mesh
+        vertex_map = nearest_vertices(low_target.verts, target.verts[vertex_map])
+        target = low_target
+    return source, target, vertex_map
 
 
 def covered_share(source: Mesh, target: Mesh, covered: np.ndarray) -> float:
@@ -369,7 +409,7 @@ OPEN_TARGET_UNJUDGED = (
     "which geodesics detour, and no dense map was measured around them"
 )
 """What a verdict on a target with boundaries (``partial=both``, two open scans) cannot tell without
-the dense map's figure (``dense.enabled=false``, or meshes over :data:`DENSE_DISTORTION_MAX_VERTICES`):
+the dense map's figure (``dense.enabled=false``):
 the certified map's plain figure reached 0.156 on right maps and stayed below 0.2 on 13 of 25 wrong
 ones (``bench/results/partial_to_partial_*.csv``), so it is reported only, and a ``plausible`` there
 says this."""
