@@ -266,21 +266,25 @@ def _smooth_position_code(verts: np.ndarray, dims: int = 64, seed: int = 0) -> n
     return np.cos(verts @ frequencies + rng.uniform(0, 2 * np.pi, dims))
 
 
-def _band_parts_matched(creature, overlap_method: str):
-    """Two cuts of ``creature`` from opposite sides (sharing a band) matched with ``partial="both"``.
+def _band_cuts(creature):
+    """Two cuts of ``creature`` from opposite sides, sharing a band: (lower, upper) PartialShapes."""
+    normal = np.array([0.0, 1.0, 0.3])
+    return plane_cut(creature, normal, 0.65, "lower"), plane_cut(creature, -normal, 0.65, "upper")
+
+
+def _band_parts_matched(creature, overlap_method: str, resolution: int = 300, time_limit: float = 600):
+    """The two cuts of :func:`_band_cuts` matched with ``partial="both"``.
 
     Returns the two parts, the matching and the true source overlap (V_lower,) bool.
     """
-    normal = np.array([0.0, 1.0, 0.3])
-    lower = plane_cut(creature, normal, 0.65, "lower")
-    upper = plane_cut(creature, -normal, 0.65, "upper")
+    lower, upper = _band_cuts(creature)
     code = _smooth_position_code(creature.verts)
     result = spidermatch.match(
         lower.mesh,
         upper.mesh,
         features=(code[lower.to_original], code[upper.to_original]),
-        resolution=300,
-        time_limit=600,
+        resolution=resolution,
+        time_limit=time_limit,
         partial="both",
         overlap_method=overlap_method,
     )
@@ -340,9 +344,7 @@ def test_partial_both_accepts_only_its_three_names(creature):
 
 
 def test_the_command_line_matches_two_parts_and_writes_the_source_own_indices(tmp_path, creature):
-    normal = np.array([0.0, 1.0, 0.3])
-    lower = plane_cut(creature, normal, 0.65, "lower")
-    upper = plane_cut(creature, -normal, 0.65, "upper")
+    lower, upper = _band_cuts(creature)
     out = _matched_files(
         tmp_path,
         lower.mesh,
@@ -491,18 +493,7 @@ def test_the_overlap_solve_and_the_piece_solve_share_one_time_limit(creature, mo
 
     monkeypatch.setattr(overlap_solve, "matched_overlap", overlap_recorded)
     monkeypatch.setattr(pipeline, "match", match_recorded)
-    normal = np.array([0.0, 1.0, 0.3])
-    lower, upper = plane_cut(creature, normal, 0.65, "lower"), plane_cut(creature, -normal, 0.65, "upper")
-    code = _smooth_position_code(creature.verts)
-    result = spidermatch.match(
-        lower.mesh,
-        upper.mesh,
-        features=(code[lower.to_original], code[upper.to_original]),
-        resolution=100,
-        time_limit=300,
-        partial="both",
-        overlap_method="matched",
-    )
+    _, _, result, _ = _band_parts_matched(creature, "matched", resolution=100, time_limit=300)
     assert result.details.overlap_found["method"] == "matched"
     assert limits["overlap"] == 300 * pipeline.OVERLAP_SOLVE_SHARE
     assert limits["piece"] == pytest.approx(300 - limits["overlap_solve_s"]) and limits["piece"] < 300
@@ -524,8 +515,7 @@ def test_the_command_line_gives_the_piece_what_the_overlap_solve_left(tmp_path, 
 
     monkeypatch.setattr(cli_match, "overlap_inputs", overlap_took_12_5_s)
     monkeypatch.setattr(cli_match, "match", match_recorded)
-    normal = np.array([0.0, 1.0, 0.3])
-    lower, upper = plane_cut(creature, normal, 0.65, "lower"), plane_cut(creature, -normal, 0.65, "upper")
+    lower, upper = _band_cuts(creature)
     _matched_files(tmp_path, lower.mesh, upper.mesh, "partial=both", "resolution=100", "solver.time_limit=40")
     assert given == [pytest.approx(27.5)]
 
