@@ -62,7 +62,7 @@ COLUMNS = (
 BAD_ERROR = 0.1  # a dense error above this is a wrong map (a misplaced or mirrored part)
 OVERLAP_COLUMNS = (*COLUMNS, "source_iou", "overlap_mapped")
 OVERLAP_COLUMNS += ("overlap_status", "void_share", "overlap_solve_s")  # --overlap-method matched
-OVERLAP_COLUMNS += ("turned_degrees",)  # --turn-parts
+OVERLAP_COLUMNS += ("turned_degrees", "scan_vertices")  # --turn-parts, --scan-copies
 
 
 def true_overlap(target: Mesh, target_corr: np.ndarray, kept_rows: np.ndarray) -> np.ndarray:
@@ -268,10 +268,11 @@ def run_overlap_pair(
 ) -> dict:
     """Match one part to a part of another shape (``partial="both"``) and score both overlaps."""
     pair = part_pair(parts, folder, (part_name, target_part))
+    row = {"part": part_name, "target": target_part, "kept_area": pair.kept_area}
     if args.scan_copies is not None:
         pair = scanned_pair(pair, args.scan_copies)
+        row["scan_vertices"] = "/".join(str(mesh.n_verts) for mesh in pair.meshes)
     meshes, wholes, to_original = list(pair.meshes), pair.wholes, pair.to_original
-    row = {"part": part_name, "target": target_part, "kept_area": pair.kept_area}
     if args.turn_parts is not None:  # the source as a scanner may give it; the scores read indices only
         meshes[0], row["turned_degrees"] = turned_copy(meshes[0], args.turn_parts)
     if args.unit_scale != 1.0:  # both parts in another unit (one unit for the two: a partial pair's rule)
