@@ -54,6 +54,7 @@ import numpy as np
 from spidermatch.eval.metrics import TEAR_THRESHOLD, flipped_faces, vertex_map_consistency
 from spidermatch.geometry.geodesics import GeodesicDistances
 from spidermatch.geometry.mesh import Mesh, boundary_vertices, topology
+from spidermatch.geometry.remesh import decimate, nearest_vertices
 from spidermatch.geometry.surface import surface_positions
 
 MIRROR_SUSPECT = 0.3
@@ -308,8 +309,6 @@ def distortion_meshes(source: Mesh, target: Mesh, vertex_map: np.ndarray) -> tup
         The meshes measured (V_x and V_y vertices).
     vertex_map : np.ndarray, shape (V_x,)
     """
-    from spidermatch.geometry.remesh import decimate, nearest_vertices
-
     vertex_map = np.asarray(vertex_map, dtype=np.int64)
     if max(source.n_verts, target.n_verts) <= DENSE_DISTORTION_MAX_VERTICES:
         return source, target, vertex_map
