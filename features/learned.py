@@ -32,6 +32,7 @@ from features.orientation import (
     probe_input,
     rotated_input,
     search_from_payload,
+    search_points,
     searches_orientation,
 )
 from features.wks import normalise_rows
@@ -330,7 +331,8 @@ class LearnedExtractor:
         feat_whole = self._features(self.network, whole)
         shown = self.orientations.get(whole.name)
         whole_points = whole.verts if shown is None else whole.verts @ shown.rotation.double().numpy().T
-        return self._part_options(part, feat_whole, whole_points, whole.area, count), feat_whole
+        options = self._part_options(part, feat_whole, whole_points, whole.vertex_areas, whole.area, count)
+        return options, feat_whole
 
     def parts_features(self, part_x: Mesh, part_y: Mesh) -> tuple[np.ndarray, np.ndarray]:
         """Descriptors of two parts of one surface (partial-to-partial), in one unit of length.
@@ -354,24 +356,30 @@ class LearnedExtractor:
         shape_y = prepare_shape(part_y, self.config, use_cache=self.use_cache, scale_area=unit_area)
         with torch.no_grad():
             feat_y = normalise_rows(self.network(shape_y.features, shape_y.ops).double().numpy())
-        return self._part_onto(part_x, feat_y, part_y.verts, unit_area), feat_y
-
-    def _part_onto(self, part: Mesh, feat_other: np.ndarray, other_points: np.ndarray, unit_area: float):
-        """Descriptors (V_part, C_out) of ``part`` in ``unit_area``'s unit, turned and placed on the other.
-
-        ``other_points`` (V_other, 3) are the other shape's vertices as its features were computed
-        (rotated by its own orientation, in the same unit as given).
-        """
-        return self._part_options(part, feat_other, other_points, unit_area, 1)[0][1]
+        options = self._part_options(part_x, feat_y, part_y.verts, part_y.vertex_areas, unit_area, 1)
+        return options[0][1], feat_y
 
     def _part_options(
-        self, part: Mesh, feat_other: np.ndarray, other_points: np.ndarray, unit_area: float, count: int
+        self,
+        part: Mesh,
+        feat_other: np.ndarray,
+        other_points: np.ndarray,
+        other_areas: np.ndarray,
+        unit_area: float,
+        count: int,
     ) -> list[tuple[str, np.ndarray]]:
-        """``part``'s descriptors in its ``count`` best presentations on the other shape (see _part_onto)."""
+        """``part``'s descriptors (V_part, C_out) in its ``count`` best presentations on the other shape.
+
+        Each in ``unit_area``'s unit, turned and placed on the other shape, best first.
+        ``feat_other`` (V_other, C_out) are the other shape's features, ``other_points`` (V_other, 3)
+        its vertices as they were computed on (rotated by its own orientation, in the same unit as
+        given) and ``other_areas`` (V_other,) their vertex areas.
+        """
         if self.orientation is None:
             presentations = [UNTURNED]
         else:
-            presentations = self._ranked_for_part(part, feat_other, other_points, unit_area)[: max(1, count)]
+            presentations = self._ranked_on(part, feat_other, other_points, other_areas, unit_area)
+            presentations = presentations[: max(1, count)]
             self.orientations[part.name] = presentations[0]
             if presentations[0].degrees != 0.0 or any(presentations[0].offset):
                 logger.info(
@@ -386,6 +394,17 @@ class LearnedExtractor:
                 features = self.network(shown.features, shown.ops).double().numpy()
                 options.append((presentation.describe(), normalise_rows(features)))
         return options
+
+    def _ranked_on(
+        self, part: Mesh, feat_other: np.ndarray, other_points: np.ndarray, other_areas: np.ndarray, unit_area
+    ) -> list[Orientation]:
+        """:meth:`_ranked_for_part` against at most ``PART_SEARCH_POINTS`` of the other shape's vertices.
+
+        A raw scan's thousands of vertices are sampled by area (:func:`features.orientation.search_points`):
+        every presentation scored compares the part's features with each of them.
+        """
+        sample = search_points(other_areas)
+        return self._ranked_for_part(part, feat_other[sample], other_points[sample], unit_area)
 
     def _ranked_for_part(
         self, part: Mesh, feat_other: np.ndarray, other_points: np.ndarray, unit_area: float

@@ -41,6 +41,51 @@ UP_AXES = ("x", "y", "z")
 PLACEMENT_STEP = 0.15
 PLACEMENT_REACH = 0.75
 PLACED_ORIENTATIONS = 3
+PART_SEARCH_POINTS = 6000
+"""Vertices of the other shape a part's orientation search compares against at most.
+
+Every presentation scored (about 350 for a part: the candidate orientations, then trial
+placements of the best three) compares each probe vertex's features with every vertex of the
+other shape. A raw scan's 20 000-vertex feature copy made that search take 200 s and a
+(V_probe, V) similarity matrix of 160 MB per score; a template has 5000 vertices, as many as
+the search needs to find a partner's region (docs/partial.md, "Orientation of a part")."""
+
+
+def search_points(areas: np.ndarray, most: int = PART_SEARCH_POINTS) -> np.ndarray:
+    """Sorted indices of at most ``most`` vertices spread over a surface by area, the same on every call.
+
+    Each vertex is drawn with a probability proportional to its area (capped at 1), so that a
+    scan denser in some regions is sampled evenly over its surface; a systematic draw along
+    the vertex order gives exactly ``most`` of them.
+
+    Parameters
+    ----------
+    areas : np.ndarray, shape (V,)
+        Vertex areas (positive).
+    most : int
+
+    Returns
+    -------
+    np.ndarray, shape (min(V, most),)
+        All vertices when there are no more than ``most``.
+    """
+    if len(areas) <= most:
+        return np.arange(len(areas))
+    inclusion = inclusion_probabilities(np.asarray(areas, dtype=np.float64), most)
+    marks = np.random.default_rng(0).uniform() + np.arange(most)
+    chosen = np.searchsorted(np.cumsum(inclusion), marks, side="right")
+    return np.unique(np.minimum(chosen, len(areas) - 1))  # distinct unless rounding joins two marks
+
+
+def inclusion_probabilities(weights: np.ndarray, count: int) -> np.ndarray:
+    """Probabilities (V,) proportional to ``weights`` (V,), capped at 1, that sum to ``count`` (< V)."""
+    capped = np.zeros(len(weights), dtype=bool)
+    while True:
+        scale = (count - capped.sum()) / weights[~capped].sum()
+        newly = ~capped & (scale * weights >= 1.0)
+        if not newly.any():
+            return np.where(capped, 1.0, scale * weights)
+        capped |= newly
 
 
 def turn_about_vertical(angle: float, up_axis: str = "y") -> torch.Tensor:

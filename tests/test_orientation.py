@@ -269,3 +269,42 @@ def test_a_part_with_more_area_than_its_whole_is_shown_at_its_size_read_from_the
     assert size <= np.sqrt(whole.area / larger.area) + 1e-12 and size != 1.0
     assert "times its given size" in extractor.orientations["tall"].describe()
     assert feat_part.shape[0] == larger.n_verts
+
+
+def test_the_part_search_samples_a_large_surface_evenly_by_area_and_the_same_every_time():
+    """A raw scan's thousands of vertices are sampled down, by area (a densely scanned region is
+    not favoured), the same sample on every call; a template's vertices are all kept."""
+    from features.orientation import search_points
+
+    assert np.array_equal(search_points(np.ones(40), most=40), np.arange(40))
+    areas = np.concatenate([np.ones(9000), np.full(1000, 9.0)])  # a dense half and a coarse half
+    sample = search_points(areas, most=2000)
+    assert sample.size == 2000 and np.array_equal(sample, np.unique(sample))
+    assert np.array_equal(sample, search_points(areas, most=2000))
+    coarse_share = np.mean(sample >= 9000)
+    assert 0.4 < coarse_share < 0.6  # half the area; 10 % of the vertices
+
+
+def test_a_part_is_searched_against_a_sample_of_a_large_whole(tmp_path, creature, monkeypatch):
+    """The part's orientation search compares its features with a bounded sample of the whole's
+    vertices (time and memory), and still finds the part unturned on its whole."""
+    import features.learned as learned
+    from features.orientation import search_points
+
+    whole = creature
+    part = plane_cut(whole, np.array([0.0, 1.0, 0.0]), 0.5, "upper").mesh
+    _checkpoint_with_reference(tmp_path / "a.pt", whole)
+    extractor = LearnedExtractor(str(tmp_path / "a.pt"), use_cache=False)
+    compared = []
+    ranked = OrientationSearch.ranked_for_part
+
+    def spy(self, net, probe, whole_features, whole_points):
+        compared.append((whole_features.shape[0], whole_points.shape[0]))
+        return ranked(self, net, probe, whole_features, whole_points)
+
+    monkeypatch.setattr(OrientationSearch, "ranked_for_part", spy)
+    monkeypatch.setattr(learned, "search_points", lambda areas: search_points(areas, most=120))
+    feat_part, feat_whole = extractor.part_features(part, whole)
+    assert compared == [(120, 120)]
+    assert feat_part.shape[0] == part.n_verts and feat_whole.shape[0] == whole.n_verts
+    assert extractor.orientations["upper"].degrees == 0.0
