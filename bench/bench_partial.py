@@ -62,7 +62,8 @@ COLUMNS = (
 BAD_ERROR = 0.1  # a dense error above this is a wrong map (a misplaced or mirrored part)
 OVERLAP_COLUMNS = (*COLUMNS, "source_iou", "overlap_mapped")
 OVERLAP_COLUMNS += ("overlap_status", "void_share", "overlap_solve_s")  # --overlap-method matched
-OVERLAP_COLUMNS += ("turned_degrees", "scan_vertices")  # --turn-parts, --scan-copies
+OVERLAP_COLUMNS += ("turned_degrees", "target_turned_degrees")  # --turn-parts, --turn-targets
+OVERLAP_COLUMNS += ("scan_vertices",)  # --scan-copies
 
 
 def true_overlap(target: Mesh, target_corr: np.ndarray, kept_rows: np.ndarray) -> np.ndarray:
@@ -275,6 +276,8 @@ def run_overlap_pair(
     meshes, wholes, to_original = list(pair.meshes), pair.wholes, pair.to_original
     if args.turn_parts is not None:  # the source as a scanner may give it; the scores read indices only
         meshes[0], row["turned_degrees"] = turned_copy(meshes[0], args.turn_parts)
+    if args.turn_targets is not None:  # two scans, each in a frame of its own
+        meshes[1], row["target_turned_degrees"] = turned_copy(meshes[1], args.turn_targets)
     if args.unit_scale != 1.0:  # both parts in another unit (one unit for the two: a partial pair's rule)
         meshes = [Mesh(mesh.verts * args.unit_scale, mesh.faces, mesh.name) for mesh in meshes]
     result = _timed_match(meshes[0], meshes[1], args, extractor, "both", row)
@@ -439,6 +442,13 @@ def add_part_options(parser: argparse.ArgumentParser, checkpoint_help: str) -> N
         default=None,
         metavar="SEED",
         help="present every part in a random rotation (seeded by SEED and the part's name), moved",
+    )
+    parser.add_argument(
+        "--turn-targets",
+        type=int,
+        default=None,
+        metavar="SEED",
+        help="--mode both: present the target part in a random rotation too (seeded by SEED and its name)",
     )
     parser.add_argument(
         "--scan-copies",

@@ -338,10 +338,12 @@ class LearnedExtractor:
         """Descriptors of two parts of one surface (partial-to-partial), in one unit of length.
 
         Neither area is the whole's, so both are measured in the larger part's sqrt(area)
-        (the smaller one would inflate the coordinates more). The target is presented as it
-        is given, the frame both share; with an orientation search, the source is turned as
-        a part onto it (:meth:`part_features`). No test-time adaptation (its loss compares
-        two whole shapes).
+        (the smaller one would inflate the coordinates more). With an orientation search, the
+        target is turned as a part onto the checkpoint's reference shape (two scans come in
+        frames of their own, and the network reads coordinates in the frame it was trained
+        in), shown centred on itself, and the source is turned and placed as a part onto the
+        target (:meth:`part_features`). No test-time adaptation (its loss compares two whole
+        shapes).
 
         Returns
         -------
@@ -354,10 +356,39 @@ class LearnedExtractor:
             logger.warning("%s: test-time adaptation skipped for two partial shapes", part_x.name)
         unit_area = max(part_x.area, part_y.area)
         shape_y = prepare_shape(part_y, self.config, use_cache=self.use_cache, scale_area=unit_area)
+        points_y = part_y.verts
+        turn = self._part_turn_on_reference(part_y, unit_area)
+        if turn is not None:
+            shape_y = rotated_input(shape_y, turn.rotation)
+            points_y = part_y.verts @ turn.rotation.double().numpy().T
         with torch.no_grad():
             feat_y = normalise_rows(self.network(shape_y.features, shape_y.ops).double().numpy())
-        options = self._part_options(part_x, feat_y, part_y.verts, part_y.vertex_areas, unit_area, 1)
+        options = self._part_options(part_x, feat_y, points_y, part_y.vertex_areas, unit_area, 1)
         return options[0][1], feat_y
+
+    def _part_turn_on_reference(self, part: Mesh, unit_area: float) -> Orientation | None:
+        """The rotation that turns ``part`` (in ``unit_area``'s unit) onto the search's reference shape.
+
+        The part orientation search of :meth:`part_features` with the checkpoint's reference (a
+        whole shape in the training frame) as the whole; the rotation of its best presentation,
+        without the placement (the part is shown centred on itself). None without a search.
+        """
+        if self.orientation is None:
+            return None
+        reference = self.orientation.reference
+        with torch.no_grad():
+            feat_reference = self.network(reference.features, reference.ops).double().numpy()
+        # the reference is shown in its own unit; the part search divides by sqrt(unit_area)
+        points = reference.features[:, -XYZ_CHANNELS:].double().numpy() * np.sqrt(unit_area)
+        areas = reference.ops.mass.double().numpy()
+        found = self._ranked_on(part, normalise_rows(feat_reference), points, areas, unit_area)[0]
+        turn = Orientation(found.rotation, found.degrees)
+        self.orientations[part.name] = turn
+        if turn.degrees != 0.0:
+            logger.info(
+                "%s: input %s (orientation search for a part, on the reference)", part.name, turn.describe()
+            )
+        return turn
 
     def _part_options(
         self,

@@ -308,3 +308,21 @@ def test_a_part_is_searched_against_a_sample_of_a_large_whole(tmp_path, creature
     assert compared == [(120, 120)]
     assert feat_part.shape[0] == part.n_verts and feat_whole.shape[0] == whole.n_verts
     assert extractor.orientations["upper"].degrees == 0.0
+
+
+def test_the_target_of_two_parts_is_turned_back_onto_the_reference(tmp_path, creature):
+    """partial=both: two scans come in frames of their own, so the target part, turned about the
+    vertical, is turned back onto the checkpoint's reference (and shown centred on itself); one
+    given in the training frame is left as it is."""
+    whole = creature
+    upper = plane_cut(whole, np.array([0.0, 1.0, 0.0]), 0.6, "upper").mesh
+    lower = plane_cut(whole, np.array([0.0, -1.0, 0.0]), 0.6, "lower").mesh
+    _checkpoint_with_reference(tmp_path / "a.pt", whole)
+    extractor = LearnedExtractor(str(tmp_path / "a.pt"), use_cache=False, orientation_frames=False)
+    extractor.parts_features(lower, upper)
+    assert extractor.orientations["upper"].degrees == 0.0
+    turned = Mesh(turned_mesh(upper, 90.0).verts, upper.faces, "upper")
+    feat_x, feat_y = extractor.parts_features(lower, turned)
+    assert extractor.orientations["upper"].degrees == 270.0
+    assert not any(extractor.orientations["upper"].offset)
+    assert feat_x.shape[0] == lower.n_verts and feat_y.shape[0] == upper.n_verts
