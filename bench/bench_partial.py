@@ -451,6 +451,11 @@ def add_part_options(parser: argparse.ArgumentParser, checkpoint_help: str) -> N
         help="--mode both: present the target part in a random rotation too (seeded by SEED and its name)",
     )
     parser.add_argument(
+        "--turn-part-targets",
+        action="store_true",
+        help="--mode both: the network turns the target part onto its reference first (turn_part_targets)",
+    )
+    parser.add_argument(
         "--scan-copies",
         type=int,
         default=None,
@@ -480,12 +485,15 @@ def apply_part_search_options(args: argparse.Namespace) -> None:
         orientation.PLACED_ORIENTATIONS = args.placed_orientations
 
 
-def network_extractor(checkpoint: str):
-    """The extractor of ``--checkpoint``: one network, or the ensemble of a comma-separated list."""
+def network_extractor(checkpoint: str, **options):
+    """The extractor of ``--checkpoint``: one network, or the ensemble of a comma-separated list.
+
+    ``options`` go to each network's ``LearnedExtractor`` (e.g. ``turn_part_targets``).
+    """
     from features.learned import EnsembleExtractor, LearnedExtractor
 
     paths = [path for path in checkpoint.split(",") if path]
-    return LearnedExtractor(paths[0]) if len(paths) == 1 else EnsembleExtractor(paths)
+    return LearnedExtractor(paths[0], **options) if len(paths) == 1 else EnsembleExtractor(paths, **options)
 
 
 def part_manifest(parts: Path) -> list[dict]:
@@ -590,7 +598,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         runs = list(dict.fromkeys(partial_to_full_runs(manifest, args.pairs, folder)))
     runs = runs_slice(runs, args.runs)
-    extractor = "wks" if args.checkpoint == "wks" else network_extractor(args.checkpoint)
+    turn = {"turn_part_targets": True} if args.turn_part_targets else {}
+    extractor = "wks" if args.checkpoint == "wks" else network_extractor(args.checkpoint, **turn)
     args.second_network = network_extractor(args.second_opinion) if args.second_opinion else None
     columns = OVERLAP_COLUMNS if args.mode == "both" else COLUMNS
     run = run_overlap_pair if args.mode == "both" else run_pair

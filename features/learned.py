@@ -206,6 +206,10 @@ class LearnedExtractor:
         With the search on, also try the 24 alignments of each mesh's principal axes with the
         reference's, so that a mesh in any rotation (lying down, another up axis) is presented
         as the network was trained.
+    turn_part_targets : bool
+        With the search on, turn the target of two parts (:meth:`parts_features`) onto the
+        reference shape before its features, for two scans given in frames of their own; False
+        takes the target's frame as given (docs/partial.md, "Two scans in frames of their own").
 
     """
 
@@ -221,6 +225,7 @@ class LearnedExtractor:
         use_cache: bool = True,
         orientation_turns: int | None = None,
         orientation_frames: bool = True,
+        turn_part_targets: bool = False,
     ) -> None:
         self.checkpoint = str(checkpoint)
         self.network, self.config, stored = load_network(checkpoint)
@@ -248,6 +253,7 @@ class LearnedExtractor:
             use_cache,
             orientation_frames,
         )
+        self.turn_part_targets = turn_part_targets
         self.orientations: dict[str, Orientation] = {}  # mesh name -> how its input was presented
 
     @property
@@ -338,12 +344,12 @@ class LearnedExtractor:
         """Descriptors of two parts of one surface (partial-to-partial), in one unit of length.
 
         Neither area is the whole's, so both are measured in the larger part's sqrt(area)
-        (the smaller one would inflate the coordinates more). With an orientation search, the
-        target is turned as a part onto the checkpoint's reference shape (two scans come in
-        frames of their own, and the network reads coordinates in the frame it was trained
-        in), shown centred on itself, and the source is turned and placed as a part onto the
-        target (:meth:`part_features`). No test-time adaptation (its loss compares two whole
-        shapes).
+        (the smaller one would inflate the coordinates more). The target is presented as it
+        is given, or, with ``turn_part_targets``, turned as a part onto the checkpoint's
+        reference shape (for two scans in frames of their own: the network reads coordinates
+        in the frame it was trained in) and shown centred on itself; with an orientation
+        search, the source is turned and placed as a part onto the target
+        (:meth:`part_features`). No test-time adaptation (its loss compares two whole shapes).
 
         Returns
         -------
@@ -357,7 +363,7 @@ class LearnedExtractor:
         unit_area = max(part_x.area, part_y.area)
         shape_y = prepare_shape(part_y, self.config, use_cache=self.use_cache, scale_area=unit_area)
         points_y = part_y.verts
-        turn = self._part_turn_on_reference(part_y, unit_area)
+        turn = self._part_turn_on_reference(part_y, unit_area) if self.turn_part_targets else None
         if turn is not None:
             shape_y = rotated_input(shape_y, turn.rotation)
             points_y = part_y.verts @ turn.rotation.double().numpy().T

@@ -310,18 +310,23 @@ def test_a_part_is_searched_against_a_sample_of_a_large_whole(tmp_path, creature
     assert extractor.orientations["upper"].degrees == 0.0
 
 
-def test_the_target_of_two_parts_is_turned_back_onto_the_reference(tmp_path, creature):
-    """partial=both: two scans come in frames of their own, so the target part, turned about the
-    vertical, is turned back onto the checkpoint's reference (and shown centred on itself); one
-    given in the training frame is left as it is."""
+def test_the_target_of_two_parts_is_turned_back_onto_the_reference_when_asked(tmp_path, creature):
+    """partial=both with turn_part_targets: two scans in frames of their own, so the target part,
+    turned about the vertical, is turned back onto the checkpoint's reference (and shown centred on
+    itself); one given in the training frame is left as it is. Without it the target is as given."""
     whole = creature
     upper = plane_cut(whole, np.array([0.0, 1.0, 0.0]), 0.6, "upper").mesh
     lower = plane_cut(whole, np.array([0.0, -1.0, 0.0]), 0.6, "lower").mesh
     _checkpoint_with_reference(tmp_path / "a.pt", whole)
-    extractor = LearnedExtractor(str(tmp_path / "a.pt"), use_cache=False, orientation_frames=False)
+    turned = Mesh(turned_mesh(upper, 90.0).verts, upper.faces, "upper")
+    as_given = LearnedExtractor(str(tmp_path / "a.pt"), use_cache=False, orientation_frames=False)
+    as_given.parts_features(lower, turned)
+    assert "upper" not in as_given.orientations  # the default: the target's frame as given
+    extractor = LearnedExtractor(
+        str(tmp_path / "a.pt"), use_cache=False, orientation_frames=False, turn_part_targets=True
+    )
     extractor.parts_features(lower, upper)
     assert extractor.orientations["upper"].degrees == 0.0
-    turned = Mesh(turned_mesh(upper, 90.0).verts, upper.faces, "upper")
     feat_x, feat_y = extractor.parts_features(lower, turned)
     assert extractor.orientations["upper"].degrees == 270.0
     assert not any(extractor.orientations["upper"].offset)
