@@ -50,7 +50,7 @@ from spidermatch.data.datasets import Shape, ShapeFolder, read_pairs_file
 from spidermatch.data.synthetic import random_rotation, rotation_angle
 from spidermatch.eval.errors import pointwise_geodesic_errors
 from spidermatch.geometry.io import load_mesh
-from spidermatch.geometry.mesh import Mesh, topology
+from spidermatch.geometry.mesh import Mesh, MeshError, topology
 from spidermatch.geometry.partial import kept_part
 from spidermatch.geometry.remesh import nearest_vertices
 from spidermatch.model import void
@@ -59,6 +59,7 @@ COLUMNS = (
     "part", "target", "kept_area", "mode", "status", "gap", "solve_s", "total_s", "dense_error", "iou",
     "verdict", "distortion", "dense_distortion", "mirror", "dense_mirror", "second_opinion",
 )  # fmt: skip
+logger = logging.getLogger(__name__)
 BAD_ERROR = 0.1  # a dense error above this is a wrong map (a misplaced or mirrored part)
 OVERLAP_COLUMNS = (*COLUMNS, "source_iou", "overlap_mapped")
 OVERLAP_COLUMNS += ("overlap_status", "void_share", "overlap_solve_s")  # --overlap-method matched
@@ -208,7 +209,7 @@ def run_pair(part_name: str, parts: Path, folder: ShapeFolder, target_name: str,
     result = _timed_match(
         part, target.mesh, args, extractor, "auto" if args.mode == "partial" else "off", row
     )
-    if result.dense_map is None:
+    if result is None or result.dense_map is None:
         return row
     sources, truth_images = run.scored_points()
     errors = pointwise_geodesic_errors(target.mesh, result.dense_map[sources], truth_images)
@@ -232,19 +233,28 @@ def turned_copy(part: Mesh, seed: int) -> tuple[Mesh, float]:
 
 
 def _timed_match(source: Mesh, target: Mesh, args, extractor, partial: str, row: dict):
-    """``spidermatch.match`` as a user calls it; the mode, status, gap and times go into ``row``."""
+    """``spidermatch.match`` as a user calls it; the mode, status, gap and times go into ``row``.
+
+    None when the library refuses the pair (a ``MeshError``: e.g. ``partial="both"`` finding no
+    overlap): the row then says ``status`` "refused" and the ``message``, and the bench goes on.
+    """
     started = time.perf_counter()
-    result = spidermatch.match(
-        source,
-        target,
-        features=extractor,
-        resolution=args.faces,
-        time_limit=args.time_limit,
-        strict=False,
-        partial=partial,
-        second_opinion=getattr(args, "second_network", None),
-        overlap_method=getattr(args, "overlap_method", "features"),
-    )
+    try:
+        result = spidermatch.match(
+            source,
+            target,
+            features=extractor,
+            resolution=args.faces,
+            time_limit=args.time_limit,
+            strict=False,
+            partial=partial,
+            second_opinion=getattr(args, "second_network", None),
+            overlap_method=getattr(args, "overlap_method", "features"),
+        )
+    except MeshError as refusal:
+        row.update(total_s=round(time.perf_counter() - started, 1), status="refused", message=str(refusal))
+        logger.warning("%s against %s refused: %s", row["part"], row["target"], refusal)
+        return None
     row["total_s"] = round(time.perf_counter() - started, 1)
     row.update(
         mode=result.details.pair.mode if result.details.pair else "?",
@@ -281,6 +291,8 @@ def run_overlap_pair(
     if args.unit_scale != 1.0:  # both parts in another unit (one unit for the two: a partial pair's rule)
         meshes = [Mesh(mesh.verts * args.unit_scale, mesh.faces, mesh.name) for mesh in meshes]
     result = _timed_match(meshes[0], meshes[1], args, extractor, "both", row)
+    if result is None:
+        return row
     if result.source_overlap is not None:
         row["source_iou"] = round(area_iou(meshes[0], result.source_overlap, pair.truths[0]), 4)
     if result.dense_map is None:
@@ -413,7 +425,8 @@ def summary(rows: list[dict]) -> dict:
             "runs": len(group),
             "optimal": sum(row["status"] == "optimal" for row in group),
             "median_total_s": statistics.median(row["total_s"] for row in group),
-            "median_solve_s": statistics.median(row["solve_s"] for row in group),
+            "refused": sum(row["status"] == "refused" for row in group),
+            "median_solve_s": _median([row for row in group if "solve_s" in row], "solve_s"),
             "mean_dense_error": _mean(scored, "dense_error"),
             "mean_iou": _mean(scored, "iou"),
             "median_dense_error": _median(scored, "dense_error"),

@@ -210,3 +210,23 @@ def test_a_scanned_pair_of_parts_keeps_the_truth_told_through_the_originals():
         points = whole.corr[scanned.shared]
         assert np.array_equal(to_original[position[points]], points)  # each point found as itself
         assert truth.shape == (mesh.n_verts,) and 0 < truth.sum() < mesh.n_verts
+
+
+def test_a_pair_the_library_refuses_is_a_row_and_the_bench_goes_on(monkeypatch):
+    """partial=both may find no overlap (a MeshError naming the file): the run is recorded as refused,
+    with the message, and the summary counts it instead of the whole bench dying on it."""
+    import bench_partial
+
+    from spidermatch.geometry.mesh import MeshError
+
+    def refuse(*_args, **_kwargs):
+        raise MeshError("a.off: no overlap with the target found")
+
+    monkeypatch.setattr(bench_partial.spidermatch, "match", refuse)
+    args = argparse.Namespace(faces=100, time_limit=1.0)
+    row = {"part": "a-plane", "target": "b-view", "kept_area": 0.5}
+    assert bench_partial._timed_match(None, None, args, "wks", "both", row) is None
+    assert row["status"] == "refused" and "no overlap" in row["message"]
+    done = {**row, "status": "optimal", "part": "c-plane", "total_s": 2.0, "solve_s": 1.0}
+    figures = bench_partial.summary([row, done])["all"]
+    assert figures["runs"] == 2 and figures["refused"] == 1 and figures["median_solve_s"] == 1.0
