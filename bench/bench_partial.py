@@ -55,11 +55,12 @@ from spidermatch.geometry.partial import kept_part
 from spidermatch.geometry.remesh import nearest_vertices
 from spidermatch.model import void
 
+logger = logging.getLogger(__name__)
+
 COLUMNS = (
     "part", "target", "kept_area", "mode", "status", "gap", "solve_s", "total_s", "dense_error", "iou",
     "verdict", "distortion", "dense_distortion", "mirror", "dense_mirror", "second_opinion",
 )  # fmt: skip
-logger = logging.getLogger(__name__)
 BAD_ERROR = 0.1  # a dense error above this is a wrong map (a misplaced or mirrored part)
 OVERLAP_COLUMNS = (*COLUMNS, "source_iou", "overlap_mapped")
 OVERLAP_COLUMNS += ("overlap_status", "void_share", "overlap_solve_s")  # --overlap-method matched
@@ -457,18 +458,6 @@ def add_part_options(parser: argparse.ArgumentParser, checkpoint_help: str) -> N
         help="present every part in a random rotation (seeded by SEED and the part's name), moved",
     )
     parser.add_argument(
-        "--turn-targets",
-        type=int,
-        default=None,
-        metavar="SEED",
-        help="--mode both: present the target part in a random rotation too (seeded by SEED and its name)",
-    )
-    parser.add_argument(
-        "--turn-part-targets",
-        action="store_true",
-        help="--mode both: the network turns the target part onto its reference first (turn_part_targets)",
-    )
-    parser.add_argument(
         "--scan-copies",
         type=int,
         default=None,
@@ -577,6 +566,18 @@ def main(argv: list[str] | None = None) -> int:
         "second_opinion)",
     )
     parser.add_argument(
+        "--turn-targets",
+        type=int,
+        default=None,
+        metavar="SEED",
+        help="--mode both: present the target part in a random rotation too (seeded by SEED and its name)",
+    )
+    parser.add_argument(
+        "--turn-part-targets",
+        action="store_true",
+        help="--mode both: the network turns the target part onto its reference first (turn_part_targets)",
+    )
+    parser.add_argument(
         "--overlap-method",
         choices=("features", "matched"),
         default="features",
@@ -611,8 +612,9 @@ def main(argv: list[str] | None = None) -> int:
     else:
         runs = list(dict.fromkeys(partial_to_full_runs(manifest, args.pairs, folder)))
     runs = runs_slice(runs, args.runs)
-    turn = {"turn_part_targets": True} if args.turn_part_targets else {}
-    extractor = "wks" if args.checkpoint == "wks" else network_extractor(args.checkpoint, **turn)
+    extractor = "wks"
+    if args.checkpoint != "wks":
+        extractor = network_extractor(args.checkpoint, turn_part_targets=args.turn_part_targets)
     args.second_network = network_extractor(args.second_opinion) if args.second_opinion else None
     columns = OVERLAP_COLUMNS if args.mode == "both" else COLUMNS
     run = run_overlap_pair if args.mode == "both" else run_pair

@@ -387,7 +387,7 @@ class LearnedExtractor:
         # the reference is shown in its own unit; the part search divides by sqrt(unit_area)
         points = reference.features[:, -XYZ_CHANNELS:].double().numpy() * np.sqrt(unit_area)
         areas = reference.ops.mass.double().numpy()
-        found = self._ranked_on(part, normalise_rows(feat_reference), points, areas, unit_area)[0]
+        found = self._ranked_for_part(part, normalise_rows(feat_reference), points, areas, unit_area)[0]
         turn = Orientation(found.rotation, found.degrees)
         self.orientations[part.name] = turn
         if turn.degrees != 0.0:
@@ -415,7 +415,7 @@ class LearnedExtractor:
         if self.orientation is None:
             presentations = [UNTURNED]
         else:
-            presentations = self._ranked_on(part, feat_other, other_points, other_areas, unit_area)
+            presentations = self._ranked_for_part(part, feat_other, other_points, other_areas, unit_area)
             presentations = presentations[: max(1, count)]
             self.orientations[part.name] = presentations[0]
             if presentations[0].degrees != 0.0 or any(presentations[0].offset):
@@ -432,31 +432,24 @@ class LearnedExtractor:
                 options.append((presentation.describe(), normalise_rows(features)))
         return options
 
-    def _ranked_on(
-        self, part: Mesh, feat_other: np.ndarray, other_points: np.ndarray, other_areas: np.ndarray, unit_area
-    ) -> list[Orientation]:
-        """:meth:`_ranked_for_part` against at most ``PART_SEARCH_POINTS`` of the other shape's vertices.
-
-        A raw scan's thousands of vertices are sampled by area (:func:`features.orientation.search_points`):
-        every presentation scored compares the part's features with each of them.
-        """
-        sample = search_points(other_areas)
-        return self._ranked_for_part(part, feat_other[sample], other_points[sample], unit_area)
-
     def _ranked_for_part(
-        self, part: Mesh, feat_other: np.ndarray, other_points: np.ndarray, unit_area: float
+        self, part: Mesh, feat_other: np.ndarray, other_points: np.ndarray, other_areas: np.ndarray, unit_area
     ) -> list[Orientation]:
         """The orientation search's presentations of ``part`` on the other shape, best first.
 
+        The other shape is compared through at most ``PART_SEARCH_POINTS`` of its vertices, sampled
+        by area (:func:`features.orientation.search_points`): every presentation scored compares the
+        part's features with each of them, and a raw scan has thousands.
         A part with more area than its whole (``unit_area``) cannot be of the whole's size: it
         comes from a larger body (docs/partial.md, "A part larger than its whole"). Its size
         relative to the whole is then read from its best presentation's feature partners
         (:func:`spidermatch.geometry.partial.fitted_scale`; at most what leaves it the whole's
         area), and the search is run again with the part shown at that size.
         """
-        whole = torch.from_numpy(feat_other).float()
+        sample = search_points(other_areas)
+        whole = torch.from_numpy(feat_other[sample]).float()
         probe = probe_input(part, self.config, self.train_faces, self.use_cache, scale_area=unit_area)
-        whole_points = other_points / np.sqrt(unit_area)
+        whole_points = other_points[sample] / np.sqrt(unit_area)
         ranked = self.orientation.ranked_for_part(self.network, probe, whole, whole_points)
         if part.area <= unit_area:
             return ranked
