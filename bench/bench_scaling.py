@@ -41,10 +41,13 @@ COLUMNS = (
 FULL_MODEL_COLUMNS_PER_FACE2 = 3.74  # |E_P| ~ 0.575 f * 6.5 f on FAUST_r meshes decimated to f faces
 
 
-def instance_log_name(pair, faces: int, strategy: str, tour: str, curve_seed: int, flow_rows: str) -> str:
+def instance_log_name(
+    pair, faces: int, strategy: str, tour: str, curve_seed: int, flow_rows: str, lp_cuts: bool = True
+) -> str:
     """The file name of one instance's solver log: every setting that tells two instances apart."""
     rows_named = "" if flow_rows == "found" else f"_flow_rows_{flow_rows}"  # the default: unnamed, as before
-    return f"{pair[0]}_{pair[1]}_{faces}_{strategy}_{tour}_seed{curve_seed}{rows_named}.log"
+    cuts_named = "" if lp_cuts else "_no_lp_cuts"
+    return f"{pair[0]}_{pair[1]}_{faces}_{strategy}_{tour}_seed{curve_seed}{rows_named}{cuts_named}.log"
 
 
 def run_instance(task: tuple) -> dict:
@@ -56,10 +59,11 @@ def run_instance(task: tuple) -> dict:
     tour = rest[1] if len(rest) > 1 else "christofides"
     curve_seed = rest[2] if len(rest) > 2 else 0
     flow_rows = rest[3] if len(rest) > 3 else "found"
+    lp_cuts = rest[4] if len(rest) > 4 else True
     if log_dir:  # the solver's INFO log of this instance, one file per instance
         import logging
 
-        name = instance_log_name(pair, faces, strategy, tour, curve_seed, flow_rows)
+        name = instance_log_name(pair, faces, strategy, tour, curve_seed, flow_rows, lp_cuts)
         logging.basicConfig(filename=str(Path(log_dir) / name), level=logging.INFO, force=True)
     from spidermatch.eval.errors import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match
@@ -76,7 +80,7 @@ def run_instance(task: tuple) -> dict:
         curve_matching=matching,
         curve_tour=tour,
         curve_seed=curve_seed,
-        solver=SolverOptions(time_limit=time_limit, extra=highs, flow_rows=flow_rows),
+        solver=SolverOptions(time_limit=time_limit, extra=highs, flow_rows=flow_rows, lp_cuts=lp_cuts),
     )
     try:
         result = match(x.mesh, y.mesh, feat_x, feat_y, settings)
@@ -96,6 +100,7 @@ def run_instance(task: tuple) -> dict:
         "curve_tour": tour,
         "curve_seed": curve_seed,
         "flow_rows": flow_rows,
+        "lp_cuts": lp_cuts,
         "adapt_steps": adapt_steps,
         "status": solved.status,
         "columns_built": _columns_built(strategy, solved, result.graph.n_edges),
@@ -262,6 +267,9 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--time-limit", type=float, default=600.0, help="seconds per solve")
     parser.add_argument("--flow-rows", default="found", choices=FLOW_ROWS_VALUES, help="solver.flow_rows")
+    parser.add_argument(
+        "--no-lp-cuts", dest="lp_cuts", action="store_false", help="solver.lp_cuts=false (the LP without cuts)"
+    )
     parser.add_argument("--full-model-columns", type=float, default=2.0e7)
     parser.add_argument("--out", default="bench/results/solver_scaling_faust_val.json")
     parser.add_argument("--log-dir", default=None, help="write each instance's INFO log to this folder")
@@ -285,7 +293,7 @@ def main(argv: list[str] | None = None) -> None:
                     task = (args.data, pair, faces, strategy, *features)
                     start = time.perf_counter()
                     with context.Pool(1) as pool:
-                        curve = (args.curve_tour, curve_seed, args.flow_rows)
+                        curve = (args.curve_tour, curve_seed, args.flow_rows, args.lp_cuts)
                         extra = (args.time_limit, args.curve_matching, args.log_dir, {}, *curve)
                         row = pool.apply(run_instance, (task + extra,))
                     row["process_s"] = round(time.perf_counter() - start, 1)

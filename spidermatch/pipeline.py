@@ -100,6 +100,7 @@ def default_solver_options() -> SolverOptions:
         presolve=str(solver["presolve"]),
         log=bool(solver["log"]),
         flow_rows=str(solver["flow_rows"]),
+        lp_cuts=bool(solver["lp_cuts"]),
     )
 
 

@@ -78,7 +78,7 @@ def solver_problems(solver, strategies, prefix: str = "solver.") -> list[str]:
     share = solver.get("memory_share", 1.0)
     if not is_number(share) or not 0 < share <= 1:
         problems.append(f"{prefix}memory_share={show(share)}: must be a number > 0 and <= 1")
-    for flag in ("log", "isolate"):
+    for flag in ("log", "isolate", "lp_cuts"):
         if not isinstance(solver.get(flag, False), bool):
             problems.append(f"{prefix}{flag}={show(solver.get(flag))}: must be true or false")
     return problems

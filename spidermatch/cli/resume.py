@@ -21,7 +21,7 @@ from spidermatch.versions import spidermatch_version
 # statuses that are the pair's real outcome (interrupted, output_error, started: run again)
 FINAL_STATUSES = ("optimal", "feasible", "infeasible", "no_solution", "solver_failure", "input_error")
 IGNORED_SOLVER_KEYS = ("log",)  # options that do not change a result
-SOLVER_KEYS_ADDED_LATER = {"flow_rows": "found"}
+SOLVER_KEYS_ADDED_LATER = {"flow_rows": "found", "lp_cuts": False}
 """Solver options added after pair results were stored, each with the value those runs had."""
 
 

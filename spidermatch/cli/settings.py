@@ -33,6 +33,7 @@ def settings_from_config(cfg, resolution: int, feature_name: str) -> MatchSettin
             presolve=str(solver.presolve),
             log=bool(solver.log),
             flow_rows=str(solver.get("flow_rows", "found")),
+            lp_cuts=bool(solver.get("lp_cuts", True)),
         ),
         strategy=strategy_for(str(solver.strategy), feature_name),
         isolate_solver=bool(solver.get("isolate", True)),

@@ -66,10 +66,11 @@ from spidermatch.model.lazy_model import LazyModel
 from spidermatch.model.product_graph import ProductGraph
 from spidermatch.model.solution import LP_SUPPORT, used_columns
 from spidermatch.shutdown import RunInterrupted
-from spidermatch.solve.connectivity import detached_components
+from spidermatch.solve.connectivity import connectivity_cuts, detached_components
 from spidermatch.solve.cuts import cut_pool, imposes_paths, solve_with_cuts
 from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import LP_EXTRA, HighsSession
+from spidermatch.solve.lp_cuts import CutDuals, violated_cut_sets
 from spidermatch.solve.pricing import Pricing, price, up_to, with_path_reduced_costs
 from spidermatch.solve.progress import report_known
 from spidermatch.solve.repair import (
@@ -93,6 +94,8 @@ logger = logging.getLogger(__name__)
 MAX_ADD = 100_000  # columns added per pricing round at most (the most negative ones)
 LP_REL_GAP = 1e-7  # column generation stops when the Lagrangian bound is this close to the LP value
 MAX_LP_ROUNDS = 200
+LP_CUT_ROUNDS = 20  # separations of connectivity cuts in the LP at most (each then priced again) ...
+LP_CUT_MIN_GAIN = 2e-5  # ... while the last one raised the LP's value by at least this (relative)
 FIRST_STEP = 4e-3  # first MIP: columns with reduced cost <= this times |L(y)| (about the LP's gap with
 # learned features at the default resolution) ...
 FIRST_STEP_LAYERS = 600  # ... up to this many curve positions (about the curves' length there); see
@@ -129,7 +132,11 @@ class ColgenLp:
     pricing : Pricing
         The last pricing pass, for ``y``: the columns of reduced cost up to its cutoff.
     n_rows : int
-        Rows of the last restricted LP (those its columns touch).
+        Rows of the last restricted LP (those its columns touch, and its cuts).
+    cut_duals : CutDuals
+        The correction of reduced costs by the duals of the cuts (part of the multipliers).
+    cuts : scipy.sparse.csr_matrix, shape (k, n_vars)
+        The connectivity cuts in the LP (``>= 0`` rows over the full model's columns).
 
     """
 
@@ -141,6 +148,8 @@ class ColgenLp:
     rounds: int
     pricing: Pricing
     n_rows: int
+    cut_duals: CutDuals
+    cuts: sp.csr_matrix
 
     def support(self, tolerance: float = LP_SUPPORT) -> np.ndarray:
         """Edge ids the LP solution uses, sorted."""
@@ -153,17 +162,21 @@ def _bounds_only(lazy: LazyModel) -> IlpModel:
 
 
 class RestrictedLp:
-    """The LP over the columns built so far and only the rows they touch, in one HiGHS session.
+    """The LP over the columns built so far, the rows they touch and the cuts added, in one HiGHS session.
 
     A row that no built column touches is ``0 = 0`` or ``0 <= 1``; leaving it out changes
     neither the LP's optimum nor its other duals, and 0 is an optimal dual for it. Rows are
-    added (empty) when a new column first touches them, before the column itself.
+    added (empty) when a new column first touches them, before the column itself. Connectivity
+    cuts (:mod:`spidermatch.solve.lp_cuts`) are rows too, over every column of the full model;
+    a column added later gets its coefficients in them.
     """
 
     def __init__(self, lazy: LazyModel, seed: np.ndarray, options: SolverOptions) -> None:
         self.lazy = lazy
-        self.rows = np.zeros(0, dtype=np.int64)  # full-model row of each session row
+        self.rows = np.zeros(0, dtype=np.int64)  # full-model row of each session row, -1 for a cut
         self.position = np.full(lazy.n_rows, -1, dtype=np.int64)  # session row of each full-model row
+        self.cuts = sp.coo_matrix((0, lazy.n_vars))  # cut rows over the full model's columns
+        self.columns = np.asarray(seed, dtype=np.int64)  # in session order
         sub = lazy.submodel(seed)
         self._touch(sub.matrix.indices)
         lower, upper = lazy.row_bounds
@@ -177,12 +190,21 @@ class RestrictedLp:
         self.rows = np.concatenate([self.rows, fresh])
         return fresh
 
-    def _remap(self, matrix: sp.csc_matrix) -> sp.csc_matrix:
-        indices = self.position[matrix.indices].astype(np.int32)
+    def _remap(self, matrix: sp.csc_matrix, columns: np.ndarray | None = None) -> sp.csc_matrix:
+        """Model coefficients (n_rows, k) on session rows, with the cut rows' for ``columns`` (k,)."""
+        entries = matrix.tocoo()
+        rows, cols, values = [self.position[entries.row]], [entries.col], [entries.data]
+        if columns is not None:
+            cut, column, value = entries_on(self.cuts, columns)
+            rows.append(np.flatnonzero(self.rows < 0)[cut])
+            cols.append(column)
+            values.append(value)
         remapped = sp.csc_matrix(
-            (matrix.data, indices, matrix.indptr), shape=(self.rows.size, matrix.shape[1])
+            (np.concatenate(values), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(self.rows.size, matrix.shape[1]),
         )
-        remapped.sort_indices()
+        remapped.sum_duplicates()
+        remapped.indices = remapped.indices.astype(np.int32)
         return remapped
 
     def add(self, columns: np.ndarray) -> None:
@@ -193,30 +215,70 @@ class RestrictedLp:
             lower, upper = self.lazy.row_bounds
             empty = sp.csr_matrix((fresh.size, self.session.n_vars))
             self.session.add_rows(empty, lower[fresh], upper[fresh])
-        self.session.add_columns(sub.costs, self._remap(sub.matrix))
+        self.session.add_columns(sub.costs, self._remap(sub.matrix, columns))
+        self.columns = np.concatenate([self.columns, columns])
+
+    def add_cuts(self, rows: sp.csr_matrix, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Append cut rows (k, n_edges of the full model), ``lower <= rows @ x <= upper``."""
+        cut, column, value = entries_on(rows, self.columns)
+        on_session = sp.csr_matrix((value, (cut, column)), shape=(rows.shape[0], self.columns.size))
+        self.session.add_rows(on_session, lower, upper)
+        self.rows = np.concatenate([self.rows, np.full(rows.shape[0], -1, dtype=np.int64)])
+        self.cuts = sp.vstack([self.cuts, rows]).tocoo()
 
     def row_duals(self) -> np.ndarray:
         """Duals for every row of the full model (n_rows,), 0 on the rows left out."""
+        duals = self.session.row_duals()
+        model_rows = self.rows >= 0
         y = np.zeros(self.lazy.n_rows)
-        y[self.rows] = self.session.row_duals()
+        y[self.rows[model_rows]] = duals[model_rows]
         return y
+
+    def cut_duals(self) -> CutDuals:
+        """The cuts' correction of reduced costs, with their duals sign-corrected (>= rows: mu >= 0)."""
+        return CutDuals.of(self.cuts, np.maximum(self.session.row_duals()[self.rows < 0], 0.0))
+
+
+def entries_on(rows: sp.spmatrix, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The non-zeros of ``rows`` (k, n) in ``columns`` (m,): (row, position in ``columns``, value).
+
+    Never indexes ``rows`` by column: at 4000 faces the full model has 60 M columns, and
+    scipy's column slicing allocates per column of the matrix.
+    """
+    entries = sp.coo_matrix(rows)
+    if columns.size == 0 or entries.nnz == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
+    order = np.argsort(columns, kind="stable")
+    where = np.searchsorted(columns[order], entries.col)
+    where = np.minimum(where, columns.size - 1)
+    hit = columns[order][where] == entries.col
+    return entries.row[hit].astype(np.int64), order[where[hit]], entries.data[hit]
 
 
 def generate_columns(lazy: LazyModel, seed: np.ndarray, options: SolverOptions) -> ColgenLp:
-    """Solve the LP relaxation of the full model by column generation from ``seed`` (sorted ids)."""
+    """Solve the LP relaxation of the full model by column generation from ``seed`` (sorted ids).
+
+    Where solutions are closed paths (:func:`~spidermatch.solve.cuts.imposes_paths`), each time
+    no column prices negative the connectivity cuts the LP solution violates are added
+    (:mod:`spidermatch.solve.lp_cuts`, at most ``LP_CUT_ROUNDS`` times) and pricing goes on with
+    their duals, so the bound is that of the LP with those cuts.
+    """
     lp_options = replace(options, presolve="off", extra={**options.extra, **LP_EXTRA})
     restricted = RestrictedLp(lazy, seed, lp_options)
-    order, built = [seed], np.zeros(lazy.n_vars, dtype=bool)
+    built = np.zeros(lazy.n_vars, dtype=bool)
     built[seed] = True
     bounds = _bounds_only(lazy)
+    cut_rounds = LP_CUT_ROUNDS if options.lp_cuts and imposes_paths(lazy) else 0
+    last_cut_lp = -math.inf  # the LP's value when cuts were last added
     for round_number in range(1, MAX_LP_ROUNDS + 1):
         result = restricted.session.run()
         if result.status != "optimal":
             raise LpNotSolved(result)
-        y = sign_corrected_duals(bounds, restricted.row_duals())
+        solved = restricted.columns  # the columns of this solve (x's order); later ones come after
+        y, cut_duals = sign_corrected_duals(bounds, restricted.row_duals()), restricted.cut_duals()
         # one pass serves both: the negative columns for this round and, after the last round,
         # the columns up to PRICED_SPAN |L| for the MIPs
-        pricing = price(lazy, y, threshold=PRICED_SPAN * max(abs(result.objective), 1.0))
+        pricing = price(lazy, y, PRICED_SPAN * max(abs(result.objective), 1.0), cut_duals)
         negative = (pricing.reduced < -1e-12 * max(abs(result.objective), 1.0)) & ~built[pricing.columns]
         new = pricing.columns[negative]
         logger.info(
@@ -224,18 +286,33 @@ def generate_columns(lazy: LazyModel, seed: np.ndarray, options: SolverOptions) 
             round_number, int(built.sum()), restricted.rows.size, result.objective, pricing.bound, new.size,
         )  # fmt: skip
         if new.size == 0 or relative_gap(result.objective, pricing.bound) <= LP_REL_GAP:
-            break
+            tailing_off = relative_gap(result.objective, last_cut_lp) < LP_CUT_MIN_GAIN
+            if cut_rounds == 0 or tailing_off or not _cuts_added(lazy, restricted, result.x):
+                break
+            cut_rounds, last_cut_lp = cut_rounds - 1, result.objective
+            continue
         if new.size > MAX_ADD:
             new = np.sort(new[np.argpartition(pricing.reduced[negative], MAX_ADD - 1)[:MAX_ADD]])
         restricted.add(new)
-        order.append(new)
         built[new] = True
-    order = np.concatenate(order)
-    by_id = np.argsort(order)
+    by_id = np.argsort(solved)
     return ColgenLp(
-        y, pricing.bound, result.objective, order[by_id], result.x[by_id], round_number, pricing,
-        restricted.rows.size,
+        y, pricing.bound, result.objective, solved[by_id], result.x[by_id], round_number, pricing,
+        restricted.rows.size, cut_duals, restricted.cuts.tocsr(),
     )  # fmt: skip
+
+
+def _cuts_added(lazy: LazyModel, restricted: RestrictedLp, x: np.ndarray) -> bool:
+    """Add the connectivity cuts that the LP solution x (session order) violates; whether any were."""
+    sets = violated_cut_sets(lazy.graph, restricted.columns, x)
+    if not sets:
+        return False
+    rows, lower, upper = connectivity_cuts(lazy.graph, sets)
+    restricted.add_cuts(rows, lower, upper)
+    logger.info(
+        "colgen: %d connectivity cuts (%d node sets) the LP solution violates", rows.shape[0], len(sets)
+    )
+    return True
 
 
 def _lp_incumbent(lazy: LazyModel, lp: ColgenLp) -> np.ndarray | None:
@@ -322,7 +399,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
     priced = with_path_reduced_costs(lazy, lp.pricing)
     for step in range(1, MAX_STEPS + 1):
         if threshold > priced.cutoff:
-            priced = with_path_reduced_costs(lazy, price(lazy, lp.y, threshold))
+            priced = with_path_reduced_costs(lazy, price(lazy, lp.y, threshold, lp.cut_duals))
         selection = up_to(priced, threshold)
         columns = np.union1d(selection.columns, base)
         if incumbent is not None:
@@ -553,6 +630,8 @@ def solve_column_generation(
     )  # fmt: skip
     layers = np.flatnonzero(curve.is_intersection_layer)
     pool = cut_pool(curve.first_layer, layers, options)
+    if lp.cuts.shape[0]:  # valid for every closed path: the MIPs start from the LP's bound
+        pool.add(lp.cuts, np.zeros(lp.cuts.shape[0]), np.full(lp.cuts.shape[0], np.inf))
     built = [lp.columns]
     result = certify_by_steps(lazy, lp, options, start, pool, layers, built)
     return replace(

@@ -17,6 +17,7 @@ import numpy as np
 
 from spidermatch.model.lazy_model import LazyModel
 from spidermatch.solve.cuts import imposes_paths
+from spidermatch.solve.lp_cuts import CutDuals
 from spidermatch.solve.path_costs import path_reduced_costs
 
 logger = logging.getLogger(__name__)
@@ -51,7 +52,7 @@ class Pricing:
     min_outside: float
 
 
-def price(lazy: LazyModel, y: np.ndarray, threshold: float) -> Pricing:
+def price(lazy: LazyModel, y: np.ndarray, threshold: float, cut_duals: CutDuals | None = None) -> Pricing:
     """Reduced costs of every column, block by block; keep those at most ``threshold``.
 
     Parameters
@@ -60,13 +61,18 @@ def price(lazy: LazyModel, y: np.ndarray, threshold: float) -> Pricing:
     y : np.ndarray, shape (n_rows,)
         Sign-corrected row multipliers.
     threshold : float
+    cut_duals : CutDuals, optional
+        The multipliers of connectivity cuts (rows with right-hand side 0, so they add nothing
+        to the row term of the bound), as their correction of the reduced costs.
 
     """
+    cut_duals = CutDuals.none() if cut_duals is None else cut_duals
     potentials = lazy.potentials(y)
     block = lazy.graph.block_size
     negative_sums, kept_ids, kept_reduced, min_outside = [], [], [], math.inf
     for start, stop in lazy.layer_blocks(max(1, BLOCK_COLUMNS // block)):
         reduced = lazy.block_reduced_costs(start, stop, potentials)
+        cut_duals.subtract_from(reduced, start * block)
         negative_sums.append(float(np.minimum(reduced, 0.0).sum()))
         keep = reduced <= threshold
         kept_ids.append(np.flatnonzero(keep) + start * block)

@@ -46,6 +46,10 @@ class SolverOptions:
         "found", in the layers where a solution showed a detached cycle (then re-solved);
         "intersections", in every self-intersection layer of the SpiderCurve from the first MIP
         on (measured: stronger bounds, weaker incumbents; docs/solver_failures.md).
+    lp_cuts : bool
+        ``colgen``: add the connectivity cuts its LP solution violates to the LP and price on
+        with their duals (:mod:`spidermatch.solve.lp_cuts`), for a higher bound and smaller
+        restricted MIPs.
 
     """
 
@@ -57,6 +61,7 @@ class SolverOptions:
     extra: dict = field(default_factory=dict)
     memory_share: float = 1.0
     flow_rows: str = "found"
+    lp_cuts: bool = True
 
 
 FLOW_ROWS_VALUES = ("found", "intersections")
