@@ -230,6 +230,13 @@ def skipped_row(pair: tuple, faces: int, strategy: str, limit: float) -> dict:
     }
 
 
+def add_lp_cuts_option(parser: argparse.ArgumentParser) -> None:
+    """``--no-lp-cuts``: ``solver.lp_cuts=false`` for every solve (``args.lp_cuts``, True by default)."""
+    parser.add_argument(
+        "--no-lp-cuts", dest="lp_cuts", action="store_false", help="solver.lp_cuts=false (no cuts in the LP)"
+    )
+
+
 def write_rows(out: Path, rows: list[dict], extra: dict | None = None) -> None:
     """All rows as JSON (with the command line, the software's versions and ``extra``) and CSV (columns:
     every key any row has)."""
@@ -267,9 +274,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--time-limit", type=float, default=600.0, help="seconds per solve")
     parser.add_argument("--flow-rows", default="found", choices=FLOW_ROWS_VALUES, help="solver.flow_rows")
-    parser.add_argument(
-        "--no-lp-cuts", dest="lp_cuts", action="store_false", help="solver.lp_cuts=false (the LP without cuts)"
-    )
+    add_lp_cuts_option(parser)
     parser.add_argument("--full-model-columns", type=float, default=2.0e7)
     parser.add_argument("--out", default="bench/results/solver_scaling_faust_val.json")
     parser.add_argument("--log-dir", default=None, help="write each instance's INFO log to this folder")

@@ -17,7 +17,7 @@ import multiprocessing as mp
 import time
 from pathlib import Path
 
-from bench_scaling import format_row, run_instance, write_rows
+from bench_scaling import add_lp_cuts_option, format_row, run_instance, write_rows
 from feature_options import add_feature_options, parse_checked
 
 COLUMNS = (
@@ -62,6 +62,7 @@ def main(argv: list[str] | None = None) -> None:
     add_feature_options(parser)
     parser.add_argument("--time-limit", type=float, default=600.0)
     parser.add_argument("--out", default="bench/results/solve.json")
+    add_lp_cuts_option(parser)
     parser.add_argument(
         "--highs",
         nargs="*",
@@ -81,7 +82,9 @@ def main(argv: list[str] | None = None) -> None:
         for faces in args.resolutions:
             for strategy in args.strategies:
                 features = (args.features, args.checkpoint, 0)  # no adaptation
-                task = (args.data, pair, faces, strategy, *features, args.time_limit, "greedy", None, highs)
+                curve = ("christofides", 0, "found", args.lp_cuts)  # the default tour, seed and flow rows
+                solve = (args.time_limit, "greedy", None, highs, *curve)
+                task = (args.data, pair, faces, strategy, *features, *solve)
                 start = time.perf_counter()
                 with context.Pool(1) as pool:
                     row = pool.apply(run_instance, (task,))

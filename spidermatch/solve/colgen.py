@@ -70,7 +70,7 @@ from spidermatch.solve.connectivity import connectivity_cuts, detached_component
 from spidermatch.solve.cuts import cut_pool, imposes_paths, solve_with_cuts
 from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import LP_EXTRA, HighsSession
-from spidermatch.solve.lp_cuts import CutDuals, violated_cut_sets
+from spidermatch.solve.lp_cuts import LP_CUT_MIN_GAIN, LP_CUT_ROUNDS, CutDuals, violated_cut_sets
 from spidermatch.solve.pricing import Pricing, price, up_to, with_path_reduced_costs
 from spidermatch.solve.progress import report_known
 from spidermatch.solve.repair import (
@@ -94,8 +94,6 @@ logger = logging.getLogger(__name__)
 MAX_ADD = 100_000  # columns added per pricing round at most (the most negative ones)
 LP_REL_GAP = 1e-7  # column generation stops when the Lagrangian bound is this close to the LP value
 MAX_LP_ROUNDS = 200
-LP_CUT_ROUNDS = 20  # separations of connectivity cuts in the LP at most (each then priced again) ...
-LP_CUT_MIN_GAIN = 2e-5  # ... while the last one raised the LP's value by at least this (relative)
 FIRST_STEP = 4e-3  # first MIP: columns with reduced cost <= this times |L(y)| (about the LP's gap with
 # learned features at the default resolution) ...
 FIRST_STEP_LAYERS = 600  # ... up to this many curve positions (about the curves' length there); see

@@ -37,6 +37,8 @@ from spidermatch.model.product_graph import INTRA, ProductGraph
 FLOW_SCALE = 1_000_000  # capacities are x scaled to integers (scipy's maximum_flow wants int32)
 MIN_VIOLATION = 1e-4  # a cut counts as violated when x_e exceeds the minimum cut by this much
 SUPPORT = 1e-6  # edges with x above this form the support graph
+LP_CUT_ROUNDS = 20  # separations of connectivity cuts in the LP at most (each then solved again) ...
+LP_CUT_MIN_GAIN = 2e-5  # ... while the last one raised the LP's value by at least this (relative)
 
 
 @dataclass(frozen=True, eq=False)
