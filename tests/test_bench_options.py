@@ -165,6 +165,53 @@ def test_scaling_logs_of_two_flow_row_settings_get_two_names():
     default, everywhere = instance_log_name(*args, "found"), instance_log_name(*args, "intersections")
     assert default == "tr_reg_076_tr_reg_077_4000_colgen_two_opt_seed0.log"  # as the stored logs are named
     assert everywhere != default and "intersections" in everywhere
+    without_cuts = instance_log_name(*args, "found", False)  # --no-lp-cuts
+    assert without_cuts not in (default, everywhere) and "no_lp_cuts" in without_cuts
+
+
+def test_solve_benchmarks_pass_no_lp_cuts_to_the_solver(monkeypatch):
+    """``--no-lp-cuts`` reaches ``SolverOptions.lp_cuts`` through run_instance's task (both benchmarks)."""
+    import bench_scaling
+    import bench_solve
+
+    seen = []
+
+    class StopHere(Exception):
+        pass
+
+    def fake_match(source, target, feat_x, feat_y, settings):
+        seen.append(settings.solver.lp_cuts)
+        raise StopHere
+
+    monkeypatch.setattr("spidermatch.pipeline.match", fake_match)
+    from types import SimpleNamespace
+
+    shape = SimpleNamespace(mesh=None)
+    monkeypatch.setattr(bench_scaling, "load_pair_with_features", lambda *args: (shape, shape, None, None))
+
+    class InProcess:  # the benchmarks' one-process pool, run here
+        def __init__(self, *args):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def apply(self, function, args):
+            return function(*args)
+
+    class Context:
+        Pool = InProcess
+
+    monkeypatch.setattr("multiprocessing.get_context", lambda kind: Context())
+    for main in (bench_solve.main, bench_scaling.main):
+        for flag in ([], ["--no-lp-cuts"]):
+            with pytest.raises(StopHere):
+                pair = ["--pairs", "creature_000:creature_001", "--strategies", "colgen", "--time-limit", "1"]
+                main([*pair, "--out", "/dev/null", *flag])
+    assert seen == [True, False, True, False]
 
 
 def test_benchmark_results_say_which_software_made_them(tmp_path):
