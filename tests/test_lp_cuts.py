@@ -103,22 +103,3 @@ def test_cuts_raise_the_lp_bound_and_colgen_stays_exact(caplog):
     assert with_cuts.objective == pytest.approx(without.objective, rel=1e-9)
     assert cut_lp.bound <= with_cuts.objective + 1e-9
 
-
-def test_rcfix_lp_with_cuts_has_a_higher_bound_and_the_same_optimum():
-    from spidermatch.solve.rcfix import solve_lp
-    from spidermatch.solve.strategies import solve_with_strategy
-
-    lazy, curve = synthetic_colgen_instance()
-    model = lazy.full_model()
-    plain_lp = solve_lp(model, EXACT)  # no graph: no cuts
-    cut_lp = solve_lp(model, EXACT, lazy.graph)
-    assert plain_lp.cuts is None and cut_lp.cuts is not None
-    assert cut_lp.dual.bound > plain_lp.dual.bound + 1e-6
-    assert (cut_lp.cuts @ cut_lp.x >= -1e-7).all()
-    without = solve_lp(model, replace(EXACT, lp_cuts=False), lazy.graph)
-    assert without.cuts is None and without.dual.bound == pytest.approx(plain_lp.dual.bound, rel=1e-12)
-    rcfix = solve_with_strategy("rcfix", model, lazy.graph, curve, EXACT)
-    colgen = solve_with_strategy("colgen", lazy, lazy.graph, curve, EXACT)
-    assert rcfix.status == colgen.status == "optimal"
-    assert rcfix.objective == pytest.approx(colgen.objective, rel=1e-9)
-    assert cut_lp.dual.bound <= rcfix.objective + 1e-9

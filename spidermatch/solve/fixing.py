@@ -22,7 +22,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from spidermatch.model.ilp import IlpModel
 from spidermatch.model.product_graph import ProductGraph
@@ -87,12 +86,7 @@ def sign_corrected_duals(model: IlpModel, row_duals: np.ndarray) -> np.ndarray:
     return y
 
 
-def dual_bound(
-    model: IlpModel,
-    row_duals: np.ndarray,
-    cuts: sp.spmatrix | None = None,
-    cut_duals: np.ndarray | None = None,
-) -> DualBound:
+def dual_bound(model: IlpModel, row_duals: np.ndarray) -> DualBound:
     """The certified bound ``L(y)`` and reduced costs for (sign-corrected) row multipliers.
 
     Parameters
@@ -100,17 +94,11 @@ def dual_bound(
     model : IlpModel
     row_duals : np.ndarray, shape (m,)
         Any multipliers, e.g. the row duals of an LP solve.
-    cuts : scipy.sparse matrix, shape (k, n), optional
-        Connectivity cuts ``cuts @ x >= 0`` (valid for closed paths only: so is the bound then).
-    cut_duals : np.ndarray, shape (k,), optional
-        Their multipliers (negative ones count as 0).
 
     """
     y = sign_corrected_duals(model, row_duals)
     selected = np.where(y > 0, model.row_lower, model.row_upper)
     row_terms = np.where(y != 0, y * np.where(np.isfinite(selected), selected, 0.0), 0.0)
     reduced = model.costs - model.matrix.T @ y
-    if cuts is not None and cuts.shape[0]:  # right-hand sides 0: nothing to the row terms
-        reduced -= cuts.T @ np.maximum(np.asarray(cut_duals, dtype=np.float64), 0.0)
     bound = math.fsum(row_terms) + math.fsum(np.minimum(reduced, 0.0))
     return DualBound(bound, reduced)

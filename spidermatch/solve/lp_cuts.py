@@ -5,11 +5,12 @@ The connectivity cuts of :mod:`spidermatch.solve.connectivity`,
     sum_{f leaving S} x_f  -  x_e  >=  0        (S a node set inside one layer, e an intra edge in S)
 
 hold for every single closed path, so they are valid rows of the LP relaxation too. The plain
-LP satisfies them rarely: its solution often sends a fraction of a unit round a cycle inside a
+LP can violate them: its solution may send a fraction of a unit round a cycle inside a
 self-intersection layer, where PES pays for the out-flow and nothing forces it on to the next
 layer. Column generation (:mod:`spidermatch.solve.colgen`) therefore adds the violated ones
-between its pricing rounds, which raises the LP bound ``L`` (measured: bench/README.md, solver
-constants) and with it shrinks every restricted MIP that certifies against it.
+between its pricing rounds, which raises the LP bound ``L`` and with it shrinks every restricted
+MIP that certifies against it (measured: docs/solver_failures.md, "Connectivity cuts in the LP
+relaxation").
 
 Separation is exact for the support of a solution ``x``: for an intra edge ``e = (a, b)`` of
 layer ``l`` with ``x_e > 0`` the least ``sum_{f leaving S} x_f`` over the sets S holding a and

@@ -18,18 +18,15 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
-import scipy.sparse as sp
 
 from spidermatch.model.curve import SpiderCurve
 from spidermatch.model.ilp import IlpModel
 from spidermatch.model.product_graph import ProductGraph
 from spidermatch.model.solution import LP_SUPPORT, used_columns
 from spidermatch.shutdown import RunInterrupted
-from spidermatch.solve.connectivity import connectivity_cuts
 from spidermatch.solve.cuts import cut_pool, imposes_paths, solve_with_cuts
 from spidermatch.solve.fixing import DualBound, dual_bound
 from spidermatch.solve.highs import LP_EXTRA, HighsSession
-from spidermatch.solve.lp_cuts import LP_CUT_MIN_GAIN, LP_CUT_ROUNDS, violated_cut_sets
 from spidermatch.solve.progress import report_known
 from spidermatch.solve.types import (
     LpNotSolved,
@@ -57,24 +54,15 @@ MAX_PHASES = 4
 
 @dataclass(frozen=True)
 class LpSolve:
-    """The LP relaxation's solution and the certified bound from its duals.
-
-    ``cuts`` (k, n): the connectivity cuts added to the LP (``>= 0`` rows), or None.
-    """
+    """The LP relaxation's solution and the certified bound from its duals."""
 
     x: np.ndarray
     dual: DualBound
     wall_time: float
-    cuts: sp.csr_matrix | None = None
 
 
-def solve_lp(model: IlpModel, options: SolverOptions, graph: ProductGraph | None = None) -> LpSolve | None:
-    """LP relaxation by dual simplex without presolve; None if it is infeasible.
-
-    Given the ``graph``, with ``options.lp_cuts`` and a model of closed paths, the connectivity
-    cuts its solution violates are added and the LP solved again, as in ``colgen``
-    (:mod:`spidermatch.solve.lp_cuts`).
-    """
+def solve_lp(model: IlpModel, options: SolverOptions) -> LpSolve | None:
+    """LP relaxation by dual simplex without presolve; None if it is infeasible."""
     start = time.perf_counter()
     lp_options = replace(options, presolve="off", extra={**options.extra, **LP_EXTRA})
     session = HighsSession(model, lp_options, relax=True)
@@ -83,12 +71,7 @@ def solve_lp(model: IlpModel, options: SolverOptions, graph: ProductGraph | None
         return None
     if result.status != "optimal":
         raise LpNotSolved(result)
-    cuts = None
-    if graph is not None and options.lp_cuts and imposes_paths(model):
-        cuts, result = _cut_rounds(session, graph, result)
-    duals = session.row_duals()
-    n_cuts = 0 if cuts is None else cuts.shape[0]
-    dual = dual_bound(model, duals[: model.n_rows], cuts, duals[model.n_rows :] if n_cuts else None)
+    dual = dual_bound(model, session.row_duals())
     logger.info(
         "LP relaxation: value %.6g, certified bound %.6g, %d fractional values (%.1f s)",
         result.objective,
@@ -96,36 +79,7 @@ def solve_lp(model: IlpModel, options: SolverOptions, graph: ProductGraph | None
         count_fractional(result.x),
         time.perf_counter() - start,
     )
-    return LpSolve(result.x, dual, time.perf_counter() - start, cuts)
-
-
-def _cut_rounds(session: HighsSession, graph: ProductGraph, result: SolveResult) -> tuple:
-    """Add the connectivity cuts the LP solution violates and solve again, round after round.
-
-    Stops when none is violated, the LP's value rose by less than ``LP_CUT_MIN_GAIN`` (relative),
-    after ``LP_CUT_ROUNDS``, or when a re-solve does not end optimal (the time limit): the
-    session's duals are then those of that run, multipliers like any other (a weaker bound).
-    Returns the cuts added ((k, n) or None) and the last optimal result.
-    """
-    all_columns = np.arange(graph.n_edges)
-    added, last_value = [], -math.inf
-    for _ in range(LP_CUT_ROUNDS):
-        if relative_gap(result.objective, last_value) < LP_CUT_MIN_GAIN:
-            break
-        sets = violated_cut_sets(graph, all_columns, result.x)
-        if not sets:
-            break
-        rows, lower, upper = connectivity_cuts(graph, sets)
-        session.add_rows(rows, lower, upper)
-        added.append(rows)
-        last_value = result.objective
-        again = session.run()
-        if again.status != "optimal":
-            logger.info("LP relaxation with %d more cuts not solved: %s", rows.shape[0], again.message)
-            break
-        result = again
-        logger.info("LP relaxation: %d connectivity cuts added, value %.8g", rows.shape[0], result.objective)
-    return (sp.vstack(added).tocsr() if added else None), result
+    return LpSolve(result.x, dual, time.perf_counter() - start)
 
 
 def seed_columns(lp: LpSolve, scale: float) -> np.ndarray:
@@ -152,7 +106,7 @@ def solve_reduced_cost_fixing(
     """LP bound, incumbent from a restricted MIP, reduced-cost fixing, final MIP on survivors."""
     start = time.perf_counter()
     try:
-        lp = solve_lp(model, options, graph)
+        lp = solve_lp(model, options)
     except LpNotSolved as stopped:
         kind = "no_solution" if stopped.result.status in ("no_solution", "feasible") else "error"
         message = f"LP relaxation not solved: {stopped.result.message}"
@@ -168,8 +122,6 @@ def solve_reduced_cost_fixing(
     report_known(bound=lp.dual.bound)
     intersection_layers = np.flatnonzero(curve.is_intersection_layer)
     pool = cut_pool(curve.first_layer, intersection_layers, options)
-    if lp.cuts is not None:  # valid for every closed path: the MIPs start from the LP's bound
-        pool.add(lp.cuts, np.zeros(lp.cuts.shape[0]), np.full(lp.cuts.shape[0], np.inf))
     columns = seed_columns(lp, 1.0)
     incumbent, result, scale, certified = None, None, 1.0, False
     for phase in range(1, MAX_PHASES + 1):
