@@ -102,4 +102,3 @@ def test_cuts_raise_the_lp_bound_and_colgen_stays_exact(caplog):
     assert with_cuts.status == without.status == "optimal"
     assert with_cuts.objective == pytest.approx(without.objective, rel=1e-9)
     assert cut_lp.bound <= with_cuts.objective + 1e-9
-
