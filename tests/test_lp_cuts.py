@@ -102,3 +102,33 @@ def test_cuts_raise_the_lp_bound_and_colgen_stays_exact(caplog):
     assert with_cuts.status == without.status == "optimal"
     assert with_cuts.objective == pytest.approx(without.objective, rel=1e-9)
     assert cut_lp.bound <= with_cuts.objective + 1e-9
+
+
+def test_an_lp_stopped_after_cuts_keeps_the_last_complete_round(monkeypatch, caplog):
+    """A time limit in the re-solve after a cut round ends column generation with the LP before it
+    (its bound and duals hold), not without any LP (which left runs with no solution at all)."""
+    import spidermatch.solve.colgen as colgen
+    from spidermatch.solve.highs import HighsSession
+    from spidermatch.solve.seeds import path_band_seed, stay_seed
+
+    lazy, _ = synthetic_colgen_instance()
+    seed = np.union1d(path_band_seed(lazy), stay_seed(lazy))
+    plain_lp = colgen.generate_columns(lazy, seed, replace(EXACT, lp_cuts=False))
+    cuts_added, real_add, real_run = [], colgen._cuts_added, HighsSession.run
+
+    def add_and_note(*args):
+        added = real_add(*args)
+        cuts_added.append(added)
+        return added
+
+    def run_stopped_after_cuts(session):
+        result = real_run(session)
+        return replace(result, status="feasible", message="Time limit reached") if any(cuts_added) else result
+
+    monkeypatch.setattr(colgen, "_cuts_added", add_and_note)
+    monkeypatch.setattr(HighsSession, "run", run_stopped_after_cuts)
+    with caplog.at_level("INFO", logger="spidermatch.solve.colgen"):
+        lp = colgen.generate_columns(lazy, seed, EXACT)
+    assert any(cuts_added) and "the last complete round stands" in caplog.text
+    assert lp.cuts.shape[0] == 0  # the round before the cuts
+    assert lp.bound == pytest.approx(plain_lp.bound, rel=1e-9)

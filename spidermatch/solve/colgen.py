@@ -70,7 +70,13 @@ from spidermatch.solve.connectivity import connectivity_cuts, detached_component
 from spidermatch.solve.cuts import cut_pool, imposes_paths, solve_with_cuts
 from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import LP_EXTRA, HighsSession
-from spidermatch.solve.lp_cuts import LP_CUT_MIN_GAIN, LP_CUT_ROUNDS, CutDuals, violated_cut_sets
+from spidermatch.solve.lp_cuts import (
+    LP_CUT_MIN_GAIN,
+    LP_CUT_ROUNDS,
+    LP_CUT_TIME_SHARE,
+    CutDuals,
+    violated_cut_sets,
+)
 from spidermatch.solve.pricing import Pricing, price, up_to, with_path_reduced_costs
 from spidermatch.solve.progress import report_known
 from spidermatch.solve.repair import (
@@ -268,10 +274,15 @@ def generate_columns(lazy: LazyModel, seed: np.ndarray, options: SolverOptions) 
     bounds = _bounds_only(lazy)
     cut_rounds = LP_CUT_ROUNDS if options.lp_cuts and imposes_paths(lazy) else 0
     last_cut_lp = -math.inf  # the LP's value when cuts were last added
+    start, complete = time.perf_counter(), None  # the last round whose figures are all known
     for round_number in range(1, MAX_LP_ROUNDS + 1):
         result = restricted.session.run()
         if result.status != "optimal":
-            raise LpNotSolved(result)
+            if complete is None:
+                raise LpNotSolved(result)
+            # stopped after cuts were added to a complete LP: its bound and duals stay valid
+            logger.info("colgen: LP stopped after cuts (%s); the last complete round stands", result.message)
+            return complete
         solved = restricted.columns  # the columns of this solve (x's order); later ones come after
         y, cut_duals = sign_corrected_duals(bounds, restricted.row_duals()), restricted.cut_duals()
         # one pass serves both: the negative columns for this round and, after the last round,
@@ -284,8 +295,10 @@ def generate_columns(lazy: LazyModel, seed: np.ndarray, options: SolverOptions) 
             round_number, int(built.sum()), restricted.rows.size, result.objective, pricing.bound, new.size,
         )  # fmt: skip
         if new.size == 0 or relative_gap(result.objective, pricing.bound) <= LP_REL_GAP:
+            complete = _colgen_lp(solved, y, cut_duals, pricing, result, round_number, restricted)
             tailing_off = relative_gap(result.objective, last_cut_lp) < LP_CUT_MIN_GAIN
-            if cut_rounds == 0 or tailing_off or not _cuts_added(lazy, restricted, result.x):
+            late = time.perf_counter() - start > LP_CUT_TIME_SHARE * options.time_limit
+            if cut_rounds == 0 or tailing_off or late or not _cuts_added(lazy, restricted, result.x):
                 break
             cut_rounds, last_cut_lp = cut_rounds - 1, result.objective
             continue
@@ -293,6 +306,11 @@ def generate_columns(lazy: LazyModel, seed: np.ndarray, options: SolverOptions) 
             new = np.sort(new[np.argpartition(pricing.reduced[negative], MAX_ADD - 1)[:MAX_ADD]])
         restricted.add(new)
         built[new] = True
+    return _colgen_lp(solved, y, cut_duals, pricing, result, round_number, restricted)
+
+
+def _colgen_lp(solved, y, cut_duals, pricing, result, round_number, restricted) -> ColgenLp:
+    """The figures of one solved round (``solved``: its columns in x's order)."""
     by_id = np.argsort(solved)
     return ColgenLp(
         y, pricing.bound, result.objective, solved[by_id], result.x[by_id], round_number, pricing,

@@ -40,6 +40,7 @@ MIN_VIOLATION = 1e-4  # a cut counts as violated when x_e exceeds the minimum cu
 SUPPORT = 1e-6  # edges with x above this form the support graph
 LP_CUT_ROUNDS = 20  # separations of connectivity cuts in the LP at most (each then solved again) ...
 LP_CUT_MIN_GAIN = 2e-5  # ... while the last one raised the LP's value by at least this (relative)
+LP_CUT_TIME_SHARE = 0.25  # ... and the LP has used at most this share of the time limit (the MIPs need it)
 
 
 @dataclass(frozen=True, eq=False)
