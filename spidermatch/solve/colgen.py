@@ -306,7 +306,9 @@ def generate_columns(lazy: LazyModel, seed: np.ndarray, options: SolverOptions) 
             new = np.sort(new[np.argpartition(pricing.reduced[negative], MAX_ADD - 1)[:MAX_ADD]])
         restricted.add(new)
         built[new] = True
-    return _colgen_lp(solved, y, cut_duals, pricing, result, round_number, restricted)
+    last = _colgen_lp(solved, y, cut_duals, pricing, result, round_number, restricted)
+    # out of rounds while pricing after cuts: the complete round's bound may still be the higher
+    return complete if complete is not None and complete.bound > last.bound else last
 
 
 def _colgen_lp(solved, y, cut_duals, pricing, result, round_number, restricted) -> ColgenLp:
