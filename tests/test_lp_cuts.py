@@ -132,3 +132,15 @@ def test_an_lp_stopped_after_cuts_keeps_the_last_complete_round(monkeypatch, cap
     assert any(cuts_added) and "the last complete round stands" in caplog.text
     assert lp.cuts.shape[0] == 0  # the round before the cuts
     assert lp.bound == pytest.approx(plain_lp.bound, rel=1e-9)
+
+
+def test_rows_on_columns_equals_scipy_column_slicing():
+    from scipy import sparse
+
+    from spidermatch.solve.cuts import rows_on_columns
+
+    rng = np.random.default_rng(0)
+    rows = sparse.random(6, 500, density=0.05, random_state=1, format="csr")
+    for columns in (np.sort(rng.choice(500, 40, replace=False)), rng.choice(500, 40, replace=False)):
+        np.testing.assert_array_equal(rows_on_columns(rows, columns).toarray(), rows[:, columns].toarray())
+    assert rows_on_columns(rows, np.zeros(0, dtype=np.int64)).shape == (6, 0)

@@ -67,7 +67,7 @@ from spidermatch.model.product_graph import ProductGraph
 from spidermatch.model.solution import LP_SUPPORT, used_columns
 from spidermatch.shutdown import RunInterrupted
 from spidermatch.solve.connectivity import connectivity_cuts, detached_components
-from spidermatch.solve.cuts import cut_pool, imposes_paths, solve_with_cuts
+from spidermatch.solve.cuts import cut_pool, entries_on, imposes_paths, rows_on_columns, solve_with_cuts
 from spidermatch.solve.fixing import sign_corrected_duals
 from spidermatch.solve.highs import LP_EXTRA, HighsSession
 from spidermatch.solve.lp_cuts import (
@@ -184,7 +184,7 @@ class RestrictedLp:
         sub = lazy.submodel(seed)
         self._touch(sub.matrix.indices)
         lower, upper = lazy.row_bounds
-        model = IlpModel(sub.costs, self._remap(sub.matrix), lower[self.rows], upper[self.rows], {})
+        model = IlpModel(sub.costs, self._remap(sub.matrix, seed), lower[self.rows], upper[self.rows], {})
         self.session = HighsSession(model, options, relax=True)
 
     def _touch(self, row_indices: np.ndarray) -> np.ndarray:
@@ -194,17 +194,14 @@ class RestrictedLp:
         self.rows = np.concatenate([self.rows, fresh])
         return fresh
 
-    def _remap(self, matrix: sp.csc_matrix, columns: np.ndarray | None = None) -> sp.csc_matrix:
-        """Model coefficients (n_rows, k) on session rows, with the cut rows' for ``columns`` (k,)."""
+    def _remap(self, matrix: sp.csc_matrix, columns: np.ndarray) -> sp.csc_matrix:
+        """Model coefficients (n_rows, k) of ``columns`` (k,) on session rows, with the cut rows'."""
         entries = matrix.tocoo()
-        rows, cols, values = [self.position[entries.row]], [entries.col], [entries.data]
-        if columns is not None:
-            cut, column, value = entries_on(self.cuts, columns)
-            rows.append(np.flatnonzero(self.rows < 0)[cut])
-            cols.append(column)
-            values.append(value)
+        cut, column, value = entries_on(self.cuts, columns)
+        rows = np.concatenate([self.position[entries.row], np.flatnonzero(self.rows < 0)[cut]])
+        cols = np.concatenate([entries.col, column])
         remapped = sp.csc_matrix(
-            (np.concatenate(values), (np.concatenate(rows), np.concatenate(cols))),
+            (np.concatenate([entries.data, value]), (rows, cols)),
             shape=(self.rows.size, matrix.shape[1]),
         )
         remapped.sum_duplicates()
@@ -224,39 +221,21 @@ class RestrictedLp:
 
     def add_cuts(self, rows: sp.csr_matrix, lower: np.ndarray, upper: np.ndarray) -> None:
         """Append cut rows (k, n_edges of the full model), ``lower <= rows @ x <= upper``."""
-        cut, column, value = entries_on(rows, self.columns)
-        on_session = sp.csr_matrix((value, (cut, column)), shape=(rows.shape[0], self.columns.size))
-        self.session.add_rows(on_session, lower, upper)
+        self.session.add_rows(rows_on_columns(rows, self.columns), lower, upper)
         self.rows = np.concatenate([self.rows, np.full(rows.shape[0], -1, dtype=np.int64)])
         self.cuts = sp.vstack([self.cuts, rows]).tocoo()
 
-    def row_duals(self) -> np.ndarray:
-        """Duals for every row of the full model (n_rows,), 0 on the rows left out."""
+    def duals(self) -> tuple[np.ndarray, CutDuals]:
+        """Row duals of the last solve: the model's and the cuts' correction of reduced costs.
+
+        The first (n_rows,) covers every row of the full model, 0 on the rows left out; the cuts'
+        duals are sign-corrected (``>=`` rows: mu >= 0).
+        """
         duals = self.session.row_duals()
         model_rows = self.rows >= 0
         y = np.zeros(self.lazy.n_rows)
         y[self.rows[model_rows]] = duals[model_rows]
-        return y
-
-    def cut_duals(self) -> CutDuals:
-        """The cuts' correction of reduced costs, with their duals sign-corrected (>= rows: mu >= 0)."""
-        return CutDuals.of(self.cuts, np.maximum(self.session.row_duals()[self.rows < 0], 0.0))
-
-
-def entries_on(rows: sp.spmatrix, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The non-zeros of ``rows`` (k, n) in ``columns`` (m,): (row, position in ``columns``, value).
-
-    Never indexes ``rows`` by column: at 4000 faces the full model has 60 M columns, and
-    scipy's column slicing allocates per column of the matrix.
-    """
-    entries = sp.coo_matrix(rows)
-    if columns.size == 0 or entries.nnz == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
-    order = np.argsort(columns, kind="stable")
-    where = np.searchsorted(columns[order], entries.col)
-    where = np.minimum(where, columns.size - 1)
-    hit = columns[order][where] == entries.col
-    return entries.row[hit].astype(np.int64), order[where[hit]], entries.data[hit]
+        return y, CutDuals.of(self.cuts, np.maximum(duals[~model_rows], 0.0))
 
 
 def generate_columns(lazy: LazyModel, seed: np.ndarray, options: SolverOptions) -> ColgenLp:
@@ -284,7 +263,8 @@ def generate_columns(lazy: LazyModel, seed: np.ndarray, options: SolverOptions) 
             logger.info("colgen: LP stopped after cuts (%s); the last complete round stands", result.message)
             return complete
         solved = restricted.columns  # the columns of this solve (x's order); later ones come after
-        y, cut_duals = sign_corrected_duals(bounds, restricted.row_duals()), restricted.cut_duals()
+        row_duals, cut_duals = restricted.duals()
+        y = sign_corrected_duals(bounds, row_duals)
         # one pass serves both: the negative columns for this round and, after the last round,
         # the columns up to PRICED_SPAN |L| for the MIPs
         pricing = price(lazy, y, PRICED_SPAN * max(abs(result.objective), 1.0), cut_duals)
@@ -299,7 +279,7 @@ def generate_columns(lazy: LazyModel, seed: np.ndarray, options: SolverOptions) 
             tailing_off = relative_gap(result.objective, last_cut_lp) < LP_CUT_MIN_GAIN
             late = time.perf_counter() - start > LP_CUT_TIME_SHARE * options.time_limit
             if cut_rounds == 0 or tailing_off or late or not _cuts_added(lazy, restricted, result.x):
-                break
+                return complete
             cut_rounds, last_cut_lp = cut_rounds - 1, result.objective
             continue
         if new.size > MAX_ADD:
@@ -307,7 +287,7 @@ def generate_columns(lazy: LazyModel, seed: np.ndarray, options: SolverOptions) 
         restricted.add(new)
         built[new] = True
     last = _colgen_lp(solved, y, cut_duals, pricing, result, round_number, restricted)
-    # out of rounds while pricing after cuts: the complete round's bound may still be the higher
+    # out of rounds (while pricing after cuts, the complete round's bound may still be the higher)
     return complete if complete is not None and complete.bound > last.bound else last
 
 
