@@ -26,6 +26,7 @@ import multiprocessing as mp
 import resource
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from feature_options import add_feature_options, load_pair_with_features, parse_checked
@@ -50,21 +51,41 @@ def instance_log_name(
     return f"{pair[0]}_{pair[1]}_{faces}_{strategy}_{tour}_seed{curve_seed}{rows_named}{cuts_named}.log"
 
 
-def run_instance(task: tuple) -> dict:
+@dataclass(frozen=True)
+class Instance:
+    """One solve of a benchmark: the pair, its resolution and every setting that tells runs apart.
+
+    The defaults are the library's (the Christofides tour, seed 0, the flow rows found
+    needed, the LP's connectivity cuts on, no extra HiGHS option, no solver log).
+    """
+
+    data: str | None
+    pair: tuple[str, str]
+    faces: int
+    strategy: str
+    features: str
+    checkpoint: str | None
+    adapt_steps: int
+    time_limit: float
+    curve_matching: str
+    log_dir: str | None = None
+    highs: dict = field(default_factory=dict)  # extra HiGHS options for every solve (bench_solve.py --highs)
+    tour: str = "christofides"
+    curve_seed: int = 0
+    flow_rows: str = "found"
+    lp_cuts: bool = True
+
+
+def run_instance(task: Instance) -> dict:
     """Match one pair at one resolution with one strategy; the row of figures."""
-    data, pair, faces, strategy, features, checkpoint, adapt_steps, time_limit, matching, log_dir, *rest = (
-        task
-    )
-    highs = rest[0] if rest else {}  # extra HiGHS options for every solve (bench_solve.py --highs)
-    tour = rest[1] if len(rest) > 1 else "christofides"
-    curve_seed = rest[2] if len(rest) > 2 else 0
-    flow_rows = rest[3] if len(rest) > 3 else "found"
-    lp_cuts = rest[4] if len(rest) > 4 else True
-    if log_dir:  # the solver's INFO log of this instance, one file per instance
+    data, pair, faces, strategy = task.data, task.pair, task.faces, task.strategy
+    features, checkpoint, adapt_steps = task.features, task.checkpoint, task.adapt_steps
+    tour, curve_seed, flow_rows, lp_cuts = task.tour, task.curve_seed, task.flow_rows, task.lp_cuts
+    if task.log_dir:  # the solver's INFO log of this instance, one file per instance
         import logging
 
         name = instance_log_name(pair, faces, strategy, tour, curve_seed, flow_rows, lp_cuts)
-        logging.basicConfig(filename=str(Path(log_dir) / name), level=logging.INFO, force=True)
+        logging.basicConfig(filename=str(Path(task.log_dir) / name), level=logging.INFO, force=True)
     from spidermatch.eval.errors import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match
     from spidermatch.solve.types import SolverOptions
@@ -77,10 +98,12 @@ def run_instance(task: tuple) -> dict:
     settings = MatchSettings(
         resolution=faces,
         strategy=strategy,
-        curve_matching=matching,
+        curve_matching=task.curve_matching,
         curve_tour=tour,
         curve_seed=curve_seed,
-        solver=SolverOptions(time_limit=time_limit, extra=highs, flow_rows=flow_rows, lp_cuts=lp_cuts),
+        solver=SolverOptions(
+            time_limit=task.time_limit, extra=task.highs, flow_rows=flow_rows, lp_cuts=lp_cuts
+        ),
     )
     try:
         result = match(x.mesh, y.mesh, feat_x, feat_y, settings)
@@ -96,7 +119,7 @@ def run_instance(task: tuple) -> dict:
         "faces": faces,
         "features": features,
         "strategy": strategy,
-        "curve_matching": matching,
+        "curve_matching": task.curve_matching,
         "curve_tour": tour,
         "curve_seed": curve_seed,
         "flow_rows": flow_rows,
@@ -294,13 +317,14 @@ def main(argv: list[str] | None = None) -> None:
                 if strategy != "colgen" and full > args.full_model_columns:
                     row = skipped_row(pair, faces, strategy, args.full_model_columns)
                 else:
-                    features = (args.features, args.checkpoint, args.adapt_steps)
-                    task = (args.data, pair, faces, strategy, *features)
+                    task = Instance(
+                        args.data, pair, faces, strategy, args.features, args.checkpoint, args.adapt_steps,
+                        args.time_limit, args.curve_matching, args.log_dir, tour=args.curve_tour,
+                        curve_seed=curve_seed, flow_rows=args.flow_rows, lp_cuts=args.lp_cuts,
+                    )  # fmt: skip
                     start = time.perf_counter()
                     with context.Pool(1) as pool:
-                        curve = (args.curve_tour, curve_seed, args.flow_rows, args.lp_cuts)
-                        extra = (args.time_limit, args.curve_matching, args.log_dir, {}, *curve)
-                        row = pool.apply(run_instance, (task + extra,))
+                        row = pool.apply(run_instance, (task,))
                     row["process_s"] = round(time.perf_counter() - start, 1)
                 rows.append(row)
                 print(format_row(row), flush=True)

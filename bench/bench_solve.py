@@ -17,7 +17,7 @@ import multiprocessing as mp
 import time
 from pathlib import Path
 
-from bench_scaling import add_lp_cuts_option, format_row, run_instance, write_rows
+from bench_scaling import Instance, add_lp_cuts_option, format_row, run_instance, write_rows
 from feature_options import add_feature_options, parse_checked
 
 COLUMNS = (
@@ -81,10 +81,11 @@ def main(argv: list[str] | None = None) -> None:
         pair = tuple(pair_text.split(":"))
         for faces in args.resolutions:
             for strategy in args.strategies:
-                features = (args.features, args.checkpoint, 0)  # no adaptation
-                curve = ("christofides", 0, "found", args.lp_cuts)  # the default tour, seed and flow rows
-                solve = (args.time_limit, "greedy", None, highs, *curve)
-                task = (args.data, pair, faces, strategy, *features, *solve)
+                # no adaptation; the default tour, seed and flow rows
+                task = Instance(
+                    args.data, pair, faces, strategy, args.features, args.checkpoint, 0, args.time_limit,
+                    "greedy", highs=highs, lp_cuts=args.lp_cuts,
+                )  # fmt: skip
                 start = time.perf_counter()
                 with context.Pool(1) as pool:
                     row = pool.apply(run_instance, (task,))
