@@ -78,13 +78,14 @@ class Instance:
 
 def run_instance(task: Instance) -> dict:
     """Match one pair at one resolution with one strategy; the row of figures."""
-    data, pair, faces, strategy = task.data, task.pair, task.faces, task.strategy
-    features, checkpoint, adapt_steps = task.features, task.checkpoint, task.adapt_steps
-    tour, curve_seed, flow_rows, lp_cuts = task.tour, task.curve_seed, task.flow_rows, task.lp_cuts
+    pair = task.pair
+    label = f"{pair[0]}:{pair[1]}"
     if task.log_dir:  # the solver's INFO log of this instance, one file per instance
         import logging
 
-        name = instance_log_name(pair, faces, strategy, tour, curve_seed, flow_rows, lp_cuts)
+        name = instance_log_name(
+            pair, task.faces, task.strategy, task.tour, task.curve_seed, task.flow_rows, task.lp_cuts
+        )
         logging.basicConfig(filename=str(Path(task.log_dir) / name), level=logging.INFO, force=True)
     from spidermatch.eval.errors import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match
@@ -93,40 +94,42 @@ def run_instance(task: Instance) -> dict:
 
     sampler = TreeMemorySampler()
     start = time.perf_counter()
-    x, y, feat_x, feat_y = load_pair_with_features(data, pair, features, checkpoint, adapt_steps)
+    x, y, feat_x, feat_y = load_pair_with_features(
+        task.data, pair, task.features, task.checkpoint, task.adapt_steps
+    )
     features_s = time.perf_counter() - start
     settings = MatchSettings(
-        resolution=faces,
-        strategy=strategy,
+        resolution=task.faces,
+        strategy=task.strategy,
         curve_matching=task.curve_matching,
-        curve_tour=tour,
-        curve_seed=curve_seed,
+        curve_tour=task.tour,
+        curve_seed=task.curve_seed,
         solver=SolverOptions(
-            time_limit=task.time_limit, extra=task.highs, flow_rows=flow_rows, lp_cuts=lp_cuts
+            time_limit=task.time_limit, extra=task.highs, flow_rows=task.flow_rows, lp_cuts=task.lp_cuts
         ),
     )
     try:
         result = match(x.mesh, y.mesh, feat_x, feat_y, settings)
     except OptionError as refused:  # e.g. the memory estimate: a row saying why, and the next instance
         return {
-            "pair": f"{pair[0]}:{pair[1]}", "faces": faces, "strategy": strategy, "status": "refused",
+            "pair": label, "faces": task.faces, "strategy": task.strategy, "status": "refused",
             "message": str(refused), "features_s": round(features_s, 2), **peak_memory(),
             "sampled_peak_mib": sampler.stop(),
         }  # fmt: skip
     solved = result.solve
     row = {
-        "pair": f"{pair[0]}:{pair[1]}",
-        "faces": faces,
-        "features": features,
-        "strategy": strategy,
+        "pair": label,
+        "faces": task.faces,
+        "features": task.features,
+        "strategy": task.strategy,
         "curve_matching": task.curve_matching,
-        "curve_tour": tour,
-        "curve_seed": curve_seed,
-        "flow_rows": flow_rows,
-        "lp_cuts": lp_cuts,
-        "adapt_steps": adapt_steps,
+        "curve_tour": task.tour,
+        "curve_seed": task.curve_seed,
+        "flow_rows": task.flow_rows,
+        "lp_cuts": task.lp_cuts,
+        "adapt_steps": task.adapt_steps,
         "status": solved.status,
-        "columns_built": _columns_built(strategy, solved, result.graph.n_edges),
+        "columns_built": _columns_built(task.strategy, solved, result.graph.n_edges),
         "columns_full": result.graph.n_edges,
         "rows": solved.n_rows,
         "curve_length": result.curve.length,
