@@ -516,8 +516,9 @@ def test_the_command_line_gives_the_piece_what_the_overlap_solve_left(tmp_path, 
     monkeypatch.setattr(cli_match, "overlap_inputs", overlap_took_12_5_s)
     monkeypatch.setattr(cli_match, "match", match_recorded)
     lower, upper = _band_cuts(creature)
-    _matched_files(tmp_path, lower.mesh, upper.mesh, "partial=both", "resolution=100", "solver.time_limit=40")
-    assert given == [pytest.approx(27.5)]
+    # a limit well above the piece's need, so that a busy machine still finds its map in what is left
+    _matched_files(tmp_path, lower.mesh, upper.mesh, "partial=both", "resolution=100", "solver.time_limit=120")
+    assert given == [pytest.approx(107.5)]
 
 
 def test_later_solves_get_what_the_earlier_left_of_the_limit_and_no_limit_stays_none():
