@@ -359,6 +359,7 @@ def test_real_config_composes_and_runs(tmp_path):
     assert animals_config.model.input == "wks_xyz" and animals_config.model.in_channels == 131
     assert animals_config.data.up_axis == "z" and animals_config.data.orientation_turns == 8
     assert animals_config.data.partial_copies == 6 and animals_config.data.val == ["cat5", "dog5", "horse5"]
+    assert animals_config.loss.w_partial == 25.0  # the heavier cut-consistency term, as for people
     assert partial_config.data.partial_copies == 24 and partial_config.loss.w_partial == 25.0
     assert partial_config.run.n_steps == 6000 and partial_config.run.time_limit_min > 71  # one cosine
     assert partial_config.model == unsup_config.model and partial_config.optim == unsup_config.optim
