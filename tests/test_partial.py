@@ -517,7 +517,9 @@ def test_the_command_line_gives_the_piece_what_the_overlap_solve_left(tmp_path, 
     monkeypatch.setattr(cli_match, "match", match_recorded)
     lower, upper = _band_cuts(creature)
     # a limit well above the piece's need, so that a busy machine still finds its map in what is left
-    _matched_files(tmp_path, lower.mesh, upper.mesh, "partial=both", "resolution=100", "solver.time_limit=120")
+    _matched_files(
+        tmp_path, lower.mesh, upper.mesh, "partial=both", "resolution=100", "solver.time_limit=120"
+    )
     assert given == [pytest.approx(107.5)]
 
 
