@@ -42,15 +42,6 @@ COLUMNS = (
 FULL_MODEL_COLUMNS_PER_FACE2 = 3.74  # |E_P| ~ 0.575 f * 6.5 f on FAUST_r meshes decimated to f faces
 
 
-def instance_log_name(
-    pair, faces: int, strategy: str, tour: str, curve_seed: int, flow_rows: str, lp_cuts: bool = True
-) -> str:
-    """The file name of one instance's solver log: every setting that tells two instances apart."""
-    rows_named = "" if flow_rows == "found" else f"_flow_rows_{flow_rows}"  # the default: unnamed, as before
-    cuts_named = "" if lp_cuts else "_no_lp_cuts"
-    return f"{pair[0]}_{pair[1]}_{faces}_{strategy}_{tour}_seed{curve_seed}{rows_named}{cuts_named}.log"
-
-
 @dataclass(frozen=True)
 class Instance:
     """One solve of a benchmark: the pair, its resolution and every setting that tells runs apart.
@@ -75,6 +66,15 @@ class Instance:
     flow_rows: str = "found"
     lp_cuts: bool = True
 
+    @property
+    def log_name(self) -> str:
+        """The file name of this instance's solver log: every setting that tells two instances apart."""
+        # the defaults are left unnamed, as the stored logs are
+        rows_named = "" if self.flow_rows == "found" else f"_flow_rows_{self.flow_rows}"
+        cuts_named = "" if self.lp_cuts else "_no_lp_cuts"
+        settings = f"{self.faces}_{self.strategy}_{self.tour}_seed{self.curve_seed}"
+        return f"{self.pair[0]}_{self.pair[1]}_{settings}{rows_named}{cuts_named}.log"
+
 
 def run_instance(task: Instance) -> dict:
     """Match one pair at one resolution with one strategy; the row of figures."""
@@ -83,10 +83,7 @@ def run_instance(task: Instance) -> dict:
     if task.log_dir:  # the solver's INFO log of this instance, one file per instance
         import logging
 
-        name = instance_log_name(
-            pair, task.faces, task.strategy, task.tour, task.curve_seed, task.flow_rows, task.lp_cuts
-        )
-        logging.basicConfig(filename=str(Path(task.log_dir) / name), level=logging.INFO, force=True)
+        logging.basicConfig(filename=str(Path(task.log_dir) / task.log_name), level=logging.INFO, force=True)
     from spidermatch.eval.errors import sparse_map_errors
     from spidermatch.pipeline import MatchSettings, match
     from spidermatch.solve.types import SolverOptions

@@ -159,13 +159,17 @@ def test_a_scanned_part_is_a_clean_cut_of_the_dense_scan_with_its_originals_foun
 
 def test_scaling_logs_of_two_flow_row_settings_get_two_names():
     """``bench_scaling.py --log-dir``: a run with ``--flow-rows intersections`` keeps the default's log."""
-    from bench_scaling import instance_log_name
+    from dataclasses import replace
 
-    args = (("tr_reg_076", "tr_reg_077"), 4000, "colgen", "two_opt", 0)
-    default, everywhere = instance_log_name(*args, "found"), instance_log_name(*args, "intersections")
+    from bench_scaling import Instance
+
+    task = Instance(
+        None, ("tr_reg_076", "tr_reg_077"), 4000, "colgen", "wks", None, 0, 60.0, "ilp", tour="two_opt"
+    )
+    default, everywhere = task.log_name, replace(task, flow_rows="intersections").log_name
     assert default == "tr_reg_076_tr_reg_077_4000_colgen_two_opt_seed0.log"  # as the stored logs are named
     assert everywhere != default and "intersections" in everywhere
-    without_cuts = instance_log_name(*args, "found", False)  # --no-lp-cuts
+    without_cuts = replace(task, lp_cuts=False).log_name  # --no-lp-cuts
     assert without_cuts not in (default, everywhere) and "no_lp_cuts" in without_cuts
 
 
