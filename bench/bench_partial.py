@@ -579,9 +579,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--overlap-method",
-        choices=("features", "matched"),
+        choices=("features", "matched", "reference"),
         default="features",
-        help="--mode both: the source's overlap by the descriptors or by a matching with a void vertex",
+        help="--mode both: the source's overlap by the descriptors, by a matching with a void vertex, "
+        "or read on the network's reference shape",
     )
     parser.add_argument(
         "--void-factor",

@@ -295,6 +295,15 @@ class LearnedExtractor:
         network = self.adapt(mesh_x, mesh_y)
         return self._features(network, mesh_x), self._features(network, mesh_y)
 
+    @property
+    def reference_mesh(self) -> Mesh | None:
+        """The checkpoint's reference shape (a whole training shape, in its unit), or None without one.
+
+        ``partial="both"`` reads the overlap of two parts through it
+        (``overlap_method="reference"``: each part is placed on it as on its whole).
+        """
+        return None if self.orientation is None else self.orientation.reference_mesh
+
     def part_features(self, part: Mesh, whole: Mesh) -> tuple[np.ndarray, np.ndarray]:
         """Descriptors of a partial source and of the whole target it is a part of.
 

@@ -237,6 +237,9 @@ class OrientationSearch:
         (covers shapes lying down, upside down or in any frame).
     up_axis : str
         The vertical axis of the training shapes (``"x"``, ``"y"`` or ``"z"``).
+    reference_mesh : Mesh, optional
+        The reference as a mesh (the checkpoint stores it so), in the training shapes' unit: the
+        whole shape two parts are read against (:attr:`features.learned.LearnedExtractor.reference_mesh`).
     """
 
     reference: ShapeInput
@@ -244,6 +247,7 @@ class OrientationSearch:
     loss: FmapLossConfig
     frames: bool = False
     up_axis: str = "y"
+    reference_mesh: Mesh | None = None
 
     def angles(self) -> list[float]:
         """The turns tried, in degrees, starting with 0."""
@@ -450,4 +454,4 @@ def search_from_payload(
         payload["verts"].numpy(), payload["faces"].numpy(), name=str(payload.get("name", "reference"))
     )
     reference = prepare_shape(mesh, model, use_cache=use_cache)
-    return OrientationSearch(reference, turns, loss, frames, str(payload.get("up_axis", "y")))
+    return OrientationSearch(reference, turns, loss, frames, str(payload.get("up_axis", "y")), mesh)

@@ -23,10 +23,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from spidermatch import defaults
-from spidermatch.feature_transfer import MAX_FEATURE_VERTICES
+from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, reference_images
 from spidermatch.feature_transfer import pair_features as capped_pair_features
 from spidermatch.geometry.mesh import Mesh, MeshError, is_validated, make_mesh
-from spidermatch.geometry.overlap import estimated_overlap, overlap_part
+from spidermatch.geometry.overlap import ReferenceImages, estimated_overlap, overlap_part, reference_overlap
 from spidermatch.geometry.partial import (
     PairKind,
     PartialShape,
@@ -419,6 +419,13 @@ def pair_features(
     return feat_x, feat_y, name
 
 
+def _extractor_of(features):
+    """The extractor ``features`` names or is; None for precomputed arrays."""
+    if isinstance(features, str):
+        return _extractor_by_name(features)
+    return None if isinstance(features, (tuple, list)) else features
+
+
 def _extractor_by_name(name: str):
     if name == "wks":
         from spidermatch.geometry.descriptors import WKSExtractor
@@ -509,9 +516,12 @@ def match(
         pairs: docs/partial.md. Not with ``partial="both"``.
     overlap_method : str
         With ``partial="both"``, how the source's overlap is found: "features" (the
-        descriptors' cycle consistency, before any solve) or "matched" (a certified matching
-        of all of the source onto the target, a void vertex standing for "no partner":
-        :mod:`spidermatch.model.void`; one more solve). ``details.overlap_found`` records it.
+        descriptors' cycle consistency, before any solve), "reference" (both parts read as
+        parts of the network's whole reference shape, :func:`~spidermatch.geometry.overlap.reference_overlap`;
+        an extractor with ``reference_mesh``, else "features" is used, logged) or "matched" (a
+        certified matching of all of the source onto the target, a void vertex standing for
+        "no partner": :mod:`spidermatch.model.void`; one more solve). ``details.overlap_found``
+        records it.
 
     Returns
     -------
@@ -553,6 +563,11 @@ def match(
         partial=kind.mode == "partial",
         overlap=overlap,
     )
+    reference = None
+    if overlap and overlap_method == "reference":
+        reference = reference_images(
+            _extractor_of(features), source_mesh, target_mesh, features_max_vertices or None
+        )
     feature_time = time.perf_counter() - started
     if name == "wks":
         logger.info("features: WKS. %s", BETTER_FEATURES_HINT)
@@ -563,7 +578,7 @@ def match(
     piece = None
     if overlap:  # only the source region with a partner is matched, as a part of the target
         piece, overlap_record = source_overlap_piece(
-            source_mesh, target_mesh, feat_x, feat_y, overlap_method, run_settings
+            source_mesh, target_mesh, feat_x, feat_y, overlap_method, run_settings, reference
         )
         feat_x = feat_x[piece.to_original]
         run_settings = solver_time_left(run_settings, overlap_record.get("solve_s", 0.0))
@@ -754,10 +769,12 @@ def _checked_or_repaired(
         return repaired.piece.mesh, repaired
 
 
-OVERLAP_METHODS = ("features", "matched")
+OVERLAP_METHODS = ("features", "matched", "reference")
 """How ``partial="both"`` finds the source's overlap: by the descriptors' cycle consistency
-(:func:`~spidermatch.geometry.overlap.estimated_overlap`) or by a certified matching of all of
-the source with a void vertex (:func:`~spidermatch.overlap_solve.matched_overlap`)."""
+(:func:`~spidermatch.geometry.overlap.estimated_overlap`), by a certified matching of all of
+the source with a void vertex (:func:`~spidermatch.overlap_solve.matched_overlap`), or by
+reading both parts on the network's whole reference shape
+(:func:`~spidermatch.geometry.overlap.reference_overlap`)."""
 
 
 def check_overlap_method(method: str, keyword: str) -> None:
@@ -785,6 +802,7 @@ def source_overlap_piece(
     feat_y: np.ndarray,
     method: str = "features",
     settings=None,
+    reference: ReferenceImages | None = None,
 ) -> tuple[PartialShape, dict]:
     """The piece of ``source`` found to overlap ``target`` (two parts of one surface, one unit).
 
@@ -802,6 +820,9 @@ def source_overlap_piece(
         :data:`~spidermatch.pipeline.OVERLAP_SOLVE_SHARE` of the solver's time limit (the
         piece's solve gets what it leaves: :func:`~spidermatch.pipeline.solver_time_left` with
         the record's ``solve_s``).
+    reference : ReferenceImages, optional
+        Both parts read on a whole reference shape (:func:`spidermatch.feature_transfer.reference_images`),
+        for "reference"; without it that method falls back to the descriptors' estimate, logged.
 
     Returns
     -------
@@ -817,8 +838,20 @@ def source_overlap_piece(
 
     """
     check_overlap_method(method, "overlap_method")
+    if method == "reference" and reference is not None:
+        unit_length = float(np.sqrt(max(source.area, target.area)))
+        region = reference_overlap(source, reference, unit_length)
+        piece = overlap_part(source, region, "has a partner on the reference shape where the target lies")
+        _log_piece(source, target, piece)
+        return piece, {"method": "reference"}
     region = descriptor_overlap(source, target, feat_x, feat_y)
     record, found_as = {"method": "features"}, "has descriptors that match back to themselves"
+    if method == "reference":  # no reference shape: the features have none (WKS, joined networks)
+        logger.warning(
+            "overlap_method='reference' needs a network with a reference shape: "
+            "the descriptors' estimate is used"
+        )
+        record["fallback_from"] = "reference"
     if method == "matched":  # the estimate makes the void cheaper where it sees no partner
         from spidermatch.overlap_solve import matched_overlap
         from spidermatch.pipeline import MatchSettings, overlap_solve_settings
@@ -832,6 +865,11 @@ def source_overlap_piece(
         else:
             region, found_as = found.region, "was matched to the target, the rest to the void"
     piece = overlap_part(source, region, found_as)
+    _log_piece(source, target, piece)
+    return piece, record
+
+
+def _log_piece(source: Mesh, target: Mesh, piece: PartialShape) -> None:
     logger.info(
         "%s: matching its overlap with %s, %d of %d vertices (%.0f %% of its area)",
         source.name,
@@ -840,7 +878,6 @@ def source_overlap_piece(
         source.n_verts,
         100 * piece.kept_area,
     )
-    return piece, record
 
 
 def on_whole_source(matching: Matching, piece: PartialShape, n_source: int) -> Matching:

@@ -25,6 +25,7 @@ from scipy.spatial import cKDTree
 from spidermatch import defaults
 from spidermatch.geometry.holes import sides_to_close
 from spidermatch.geometry.mesh import Mesh, small_holes_closed
+from spidermatch.geometry.overlap import ReferenceImages, nearest_feature_rows
 from spidermatch.geometry.remesh import decimate
 from spidermatch.geometry.smoothing import ROUGH, smoothed_if_rough
 from spidermatch.model.costs import unit_rows
@@ -114,6 +115,36 @@ def part_feature_options(
     shown, back = _shown_pair(source, target, sides_to_close(target, True), max_vertices, record)
     options, feat_y = extractor.part_feature_options(*shown, count)
     return [(label, back(0, features)) for label, features in options], back(1, feat_y)
+
+
+def reference_images(
+    extractor,
+    source: Mesh,
+    target: Mesh,
+    max_vertices: int | None = MAX_FEATURE_VERTICES,
+    record: dict | None = None,
+):
+    """Two parts read on the extractor's whole reference shape, each as a part of it, or None.
+
+    Each part gets the partial mode's features against the reference
+    (:func:`pair_features` with ``partial=True``: turned and placed on it, measured in its unit, a
+    part of another size fitted to it), and each vertex its most similar reference vertex.
+    An extractor without ``reference_mesh`` (WKS, joined networks) gives None.
+
+    Returns
+    -------
+    spidermatch.geometry.overlap.ReferenceImages or None
+    """
+    reference = getattr(extractor, "reference_mesh", None)
+    if reference is None:
+        return None
+    images = []
+    for part in (source, target):
+        feat_part, feat_reference = pair_features(
+            extractor, part, reference, max_vertices, record, partial=True
+        )
+        images.append(nearest_feature_rows(unit_rows(feat_part), unit_rows(feat_reference)))
+    return ReferenceImages(reference, *images)
 
 
 def _shown_pair(source: Mesh, target: Mesh, wholes, max_vertices, record):

@@ -271,6 +271,28 @@ def test_a_part_with_more_area_than_its_whole_is_shown_at_its_size_read_from_the
     assert feat_part.shape[0] == larger.n_verts
 
 
+def test_two_parts_are_read_on_the_checkpoint_reference_shape(tmp_path, creature):
+    """The reference stored in a checkpoint is the whole two parts are read on (each placed on it as a
+    part); a checkpoint without one, and WKS, give no reading."""
+    from spidermatch.feature_transfer import reference_images
+    from spidermatch.geometry.descriptors import WKSExtractor
+
+    _checkpoint_with_reference(tmp_path / "a.pt", creature)
+    extractor = LearnedExtractor(str(tmp_path / "a.pt"), use_cache=False)
+    assert np.array_equal(extractor.reference_mesh.verts, creature.verts)
+    assert np.array_equal(extractor.reference_mesh.faces, creature.faces)
+    lower = plane_cut(creature, np.array([0.0, 1.0, 0.0]), 0.6, "lower").mesh
+    upper = plane_cut(creature, np.array([0.0, -1.0, 0.0]), 0.6, "upper").mesh
+    images = reference_images(extractor, lower, upper)
+    assert images.reference is extractor.reference_mesh
+    assert images.source.shape == (lower.n_verts,) and images.target.shape == (upper.n_verts,)
+    assert images.source.max() < creature.n_verts and images.target.min() >= 0
+    assert {"lower", "upper"} <= set(extractor.orientations)  # each placed by the part search
+    unturned = LearnedExtractor(str(tmp_path / "a.pt"), use_cache=False, orientation_turns=0)
+    assert unturned.reference_mesh is None and reference_images(unturned, lower, upper) is None
+    assert reference_images(WKSExtractor(), lower, upper) is None
+
+
 def test_the_part_search_samples_a_large_surface_evenly_by_area_and_the_same_every_time():
     """A raw scan's thousands of vertices are sampled down, by area (a densely scanned region is
     not favoured), the same sample on every call; a template's vertices are all kept."""

@@ -327,6 +327,98 @@ def test_the_overlap_matched_with_a_void_vertex_is_closer_to_the_truth_than_the_
     assert np.mean(dense_error) < 0.5 * mean_edge_length(creature)
 
 
+class _ReferenceExtractor:
+    """A network stand-in with a whole reference shape (``creature``): the descriptors of a vertex are
+    those of the creature vertex it was cut from, each part told by its vertex count."""
+
+    def __init__(self, creature, parts):
+        self.reference_mesh = creature
+        self.code = _smooth_position_code(creature.verts)
+        self.origin = {part.mesh.n_verts: part.to_original for part in parts}
+        self.origin[creature.n_verts] = np.arange(creature.n_verts)
+        self.calls = []
+
+    def _for(self, mesh):
+        return self.code[self.origin[mesh.n_verts]]
+
+    def __call__(self, mesh):
+        return self._for(mesh)
+
+    def parts_features(self, x, y):
+        return self._for(x), self._for(y)
+
+    def part_features(self, part, whole):
+        self.calls.append((part.n_verts, whole.n_verts))
+        return self._for(part), self._for(whole)
+
+
+def test_the_overlap_read_on_a_reference_shape_is_the_band_both_parts_share(creature):
+    """Each part read as a part of the whole reference: the source vertices whose partner the target
+    reaches too are the band, closer to the truth than the descriptors' estimate (IoU 0.68 here)."""
+    lower, upper = _band_cuts(creature)
+    assert len({lower.mesh.n_verts, upper.mesh.n_verts, creature.n_verts}) == 3
+    extractor = _ReferenceExtractor(creature, (lower, upper))
+    result = spidermatch.match(
+        lower.mesh, upper.mesh, features=extractor, resolution=300, partial="both", overlap_method="reference"
+    )
+    assert sorted(extractor.calls) == sorted(
+        [(lower.mesh.n_verts, creature.n_verts), (upper.mesh.n_verts, creature.n_verts)]
+    )
+    assert result.details.overlap_found == {"method": "reference"} and result.status == "optimal"
+    in_upper = np.zeros(creature.n_verts, dtype=bool)
+    in_upper[upper.to_original] = True
+    truth, found, areas = in_upper[lower.to_original], result.source_overlap, lower.mesh.vertex_areas
+    assert areas[found & truth].sum() / areas[found | truth].sum() > 0.85
+    assert areas[found & truth].sum() / areas[found].sum() > 0.9  # little matched without a partner
+    both = found & truth
+    dense_error = np.linalg.norm(upper.mesh.verts[result.dense_map[both]] - lower.mesh.verts[both], axis=1)
+    assert np.mean(dense_error) < 0.5 * mean_edge_length(creature)
+
+
+def test_parts_that_reach_disjoint_regions_of_the_reference_share_no_overlap(creature):
+    from spidermatch.geometry.overlap import ReferenceImages, overlap_part, reference_overlap
+
+    normal = np.array([0.0, 1.0, 0.3])
+    lower, upper = plane_cut(creature, normal, 0.4, "lower"), plane_cut(creature, -normal, 0.4, "upper")
+    images = ReferenceImages(creature, lower.to_original, upper.to_original)
+    region = reference_overlap(lower.mesh, images, float(np.sqrt(lower.mesh.area)))
+    assert lower.mesh.vertex_areas[region].sum() < 0.05 * lower.mesh.area
+    with pytest.raises(MeshError, match="has a partner on the reference shape where the target lies"):
+        overlap_part(lower.mesh, region, "has a partner on the reference shape where the target lies")
+    both = reference_overlap(lower.mesh, ReferenceImages(creature, lower.to_original, lower.to_original), 1.0)
+    assert both.all()  # a part against itself overlaps everywhere
+
+
+def test_the_reference_overlap_without_a_reference_shape_falls_back_to_the_estimate(creature):
+    """Precomputed descriptors (or WKS) have no reference shape: the descriptors' estimate is used, said."""
+    _, _, result, _ = _band_parts_matched(creature, "reference")
+    assert result.details.overlap_found == {"method": "features", "fallback_from": "reference"}
+    assert result.status == "optimal"
+
+
+def test_the_command_line_reads_the_overlap_on_the_checkpoint_reference(tmp_path, creature):
+    """``partial_overlap=reference`` with a network whose checkpoint stores a reference shape: both
+    parts are read on it (each placed as a part), and result.json says how the overlap was found."""
+    from test_orientation import _checkpoint_with_reference
+
+    lower, upper = _band_cuts(creature)
+    _checkpoint_with_reference(tmp_path / "net.pt", creature)
+    out = _matched_files(
+        tmp_path,
+        lower.mesh,
+        upper.mesh,
+        "partial=both",
+        "partial_overlap=reference",
+        "features=learned",
+        f"checkpoint={tmp_path / 'net.pt'}",
+        "resolution=100",
+        "solver.time_limit=40",  # an untrained network: the way the overlap was found is the point
+    )
+    result = json.loads((out / "result.json").read_text())
+    assert result["overlap"]["found_by"] == {"method": "reference"}
+    assert 0 < result["overlap"]["source_overlap_vertices"] <= lower.mesh.n_verts
+
+
 def test_an_unknown_overlap_method_is_refused_by_name(tmp_path, creature):
     with pytest.raises(ValueError, match="overlap_method='cycle'"):
         spidermatch.match(creature, creature, partial="both", overlap_method="cycle")

@@ -300,6 +300,17 @@ def second_opinion_features(cfg, inputs: MatchInputs) -> tuple[np.ndarray, np.nd
     return feat_x, feat_y
 
 
+def overlap_reference(cfg, inputs: MatchInputs):
+    """``partial_overlap=reference``: both parts read on the network's whole reference shape.
+
+    :func:`spidermatch.feature_transfer.reference_images` with the extractor ``cfg.features``
+    makes and the run's feature cap; None when it has no reference shape (WKS).
+    """
+    from spidermatch.feature_transfer import reference_images
+
+    return reference_images(make_extractor(cfg), inputs.source, inputs.target, feature_cap(cfg))
+
+
 def overlap_inputs(
     inputs: MatchInputs,
     feat_x: np.ndarray,
@@ -307,14 +318,16 @@ def overlap_inputs(
     report: dict,
     method: str = "features",
     settings=None,
+    reference=None,
 ):
     """``partial=both``: the inputs cut to the source's overlap with the target, and its features.
 
-    ``method`` and ``settings``: :func:`spidermatch.api.source_overlap_piece`'s (``partial_overlap``
-    on the command line). The ground truth keeps the reference points inside the piece
-    (renumbered to it); ``piece_of`` says where each vertex and face of the piece lies in the
-    user's source, so that the files name the source's own indices. ``report["overlap"]`` gets
-    the piece's size and how it was found (``found_by``).
+    ``method``, ``settings`` and ``reference``: :func:`spidermatch.api.source_overlap_piece`'s
+    (``partial_overlap`` on the command line; ``reference`` from :func:`overlap_reference`). The
+    ground truth keeps the reference points inside the piece (renumbered to it); ``piece_of``
+    says where each vertex and face of the piece lies in the user's source, so that the files
+    name the source's own indices. ``report["overlap"]`` gets the piece's size and how it was
+    found (``found_by``).
 
     Returns
     -------
@@ -325,7 +338,9 @@ def overlap_inputs(
     """
     from spidermatch.api import source_overlap_piece
 
-    piece, found_by = source_overlap_piece(inputs.source, inputs.target, feat_x, feat_y, method, settings)
+    piece, found_by = source_overlap_piece(
+        inputs.source, inputs.target, feat_x, feat_y, method, settings, reference
+    )
     report["overlap"] = {
         "source_overlap_vertices": int(piece.mesh.n_verts),
         "source_overlap_area": round(float(piece.kept_area), 4),

@@ -22,6 +22,7 @@ from spidermatch.cli.inputs import (
     compute_features,
     load_inputs,
     overlap_inputs,
+    overlap_reference,
     resolution_text,
     second_opinion_features,
 )
@@ -142,7 +143,8 @@ def run_stages(cfg, output_dir: Path, report: dict, getters: tuple) -> int:
     )
     if inputs.overlap:  # partial=both: only the source's overlap with the target is matched
         method = cfg.get("partial_overlap", "features")
-        inputs, feat_x = overlap_inputs(inputs, feat_x, feat_y, report, method, settings)
+        reference = overlap_reference(cfg, inputs) if method == "reference" else None
+        inputs, feat_x = overlap_inputs(inputs, feat_x, feat_y, report, method, settings, reference)
         settings = solver_time_left(settings, report["overlap"]["found_by"].get("solve_s", 0.0))
     logger.info("solving strategy: %s", settings.strategy)
     result = match(

@@ -18,6 +18,7 @@ Measurements: ``docs/partial.md``, "Partial-to-partial".
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -54,6 +55,33 @@ BLOCK_ROWS = 1024
 LEAST_OVERLAP = 0.05
 """Smallest share of the source's area an overlap may have (below it, the pair is refused)."""
 
+REFERENCE_CLOSING_RINGS = 2
+"""Rings of the closing of the target's images on the reference shape (fills the vertices a
+many-to-one map leaves unhit inside the region it reaches, as the covered target region does)."""
+
+REFERENCE_SHARE = 0.5
+"""Least area-weighted share of source vertices in the ball whose partner on the reference the
+target reaches too, for a vertex to be in the overlap (:func:`reference_overlap`)."""
+
+
+@dataclass(frozen=True)
+class ReferenceImages:
+    """Both parts of a pair read on one whole reference shape: each vertex's most similar reference vertex.
+
+    Attributes
+    ----------
+    reference : Mesh
+        The whole shape (e.g. a network's training shape), V_R vertices.
+    source : np.ndarray, shape (V_X,)
+        Reference vertex of each source vertex.
+    target : np.ndarray, shape (V_Y,)
+        Reference vertex of each target vertex.
+    """
+
+    reference: Mesh
+    source: np.ndarray
+    target: np.ndarray
+
 
 def estimated_overlap(
     source: Mesh,
@@ -84,12 +112,7 @@ def estimated_overlap(
     forward, backward = _mutual_best(source_unit[rows_x], target_unit[rows_y])
     returned = points[backward[forward]]
     consistent = np.linalg.norm(returned - points, axis=1) <= RETURN_RADIUS * unit_length
-    nearest = cKDTree(points).query(source.verts)[1]  # the sample each vertex takes its answer from
-    weights = np.bincount(nearest, weights=source.vertex_areas, minlength=len(rows_x))  # area it stands for
-    share = _ball_share(points, consistent, weights, SMOOTHING_RADIUS * unit_length)
-    in_sample = share >= MIN_CONSISTENT_SHARE
-    rings = int(np.ceil(CLOSING_RADIUS * unit_length / mean_edge_length(source)))
-    region = closed_region(in_sample[nearest], edge_adjacency(source), rings)
+    region = _smoothed_region(source, rows_x, consistent, MIN_CONSISTENT_SHARE, unit_length)
     logger.info(
         "overlap estimate: %.0f %% of %s's samples return to themselves, %.0f %% of its area kept",
         100 * consistent.mean(),
@@ -97,6 +120,74 @@ def estimated_overlap(
         100 * source.vertex_areas[region].sum() / source.area,
     )
     return region
+
+
+def reference_overlap(source: Mesh, images: ReferenceImages, unit_length: float) -> np.ndarray:
+    """Source vertices whose partner on a whole reference shape the target reaches too, (V_X,) bool.
+
+    Two parts of one kind of surface (two scans of people) are each read on a whole shape of that
+    kind, as a part on its whole: the region of the reference the target's vertices reach (closed
+    over :data:`REFERENCE_CLOSING_RINGS` rings) is where the target lies, and a source vertex whose
+    own partner lies there has a partner on the target. The partial mode's features place a part
+    on a whole far better than two parts on each other (docs/partial.md, "The overlap read on a
+    reference shape"), which is why this beats the descriptors' cycle test. Single vertices are
+    noisy, so each vertex takes the area-weighted share of such vertices within
+    :data:`SMOOTHING_RADIUS`, the overlap is where it reaches :data:`REFERENCE_SHARE`, closed as
+    :func:`estimated_overlap`'s.
+
+    Parameters
+    ----------
+    source : Mesh
+        V_X vertices.
+    images : ReferenceImages
+        Both parts' reference vertices.
+    unit_length : float
+        The pair's unit of length (sqrt of the larger part's area); the radii are in it.
+
+    Returns
+    -------
+    np.ndarray, shape (V_X,), bool
+    """
+    reference = images.reference
+    reached = np.zeros(reference.n_verts, dtype=bool)
+    reached[images.target] = True
+    reached = closed_region(reached, edge_adjacency(reference), REFERENCE_CLOSING_RINGS)
+    rows_x = _spread_sample(source.n_verts)
+    partnered = reached[images.source[rows_x]]
+    region = _smoothed_region(source, rows_x, partnered, REFERENCE_SHARE, unit_length)
+    logger.info(
+        "overlap read on the reference: the target reaches %.0f %% of its area; %.0f %% of %s's area kept",
+        100 * reference.vertex_areas[reached].sum() / reference.area,
+        100 * source.vertex_areas[region].sum() / source.area,
+        source.name,
+    )
+    return region
+
+
+def nearest_feature_rows(rows_unit: np.ndarray, other_unit: np.ndarray) -> np.ndarray:
+    """Most similar row of ``other_unit`` (N_O, D) for each of ``rows_unit`` (N, D), shape (N,).
+
+    Both L2-normalised (cosine similarity), compared in blocks of :data:`BLOCK_ROWS` rows.
+    """
+    return _mutual_best(rows_unit, other_unit)[0]
+
+
+def _smoothed_region(
+    source: Mesh, rows: np.ndarray, flags: np.ndarray, least_share: float, unit_length: float
+) -> np.ndarray:
+    """Where flagged samples are the area-weighted majority around, closed on the edge graph, (V_X,) bool.
+
+    ``rows`` (N,) are the sampled source vertices and ``flags`` (N,) bool their answers; each
+    vertex takes its nearest sample's share of flagged samples within :data:`SMOOTHING_RADIUS`
+    (each sample weighted by the area it stands for), kept where it reaches ``least_share``; gaps
+    up to about twice :data:`CLOSING_RADIUS` are closed.
+    """
+    points = source.verts[rows]
+    nearest = cKDTree(points).query(source.verts)[1]  # the sample each vertex takes its answer from
+    weights = np.bincount(nearest, weights=source.vertex_areas, minlength=len(rows))  # area it stands for
+    share = _ball_share(points, flags, weights, SMOOTHING_RADIUS * unit_length)
+    rings = int(np.ceil(CLOSING_RADIUS * unit_length / mean_edge_length(source)))
+    return closed_region((share >= least_share)[nearest], edge_adjacency(source), rings)
 
 
 def overlap_part(
