@@ -596,8 +596,8 @@ def test_the_command_line_gives_the_piece_what_the_overlap_solve_left(tmp_path, 
 
     given, real_overlap_inputs, real_match = [], cli_match.overlap_inputs, cli_match.match
 
-    def overlap_took_12_5_s(inputs, feat_x, feat_y, report, method, settings):
-        cut = real_overlap_inputs(inputs, feat_x, feat_y, report, method, settings)
+    def overlap_took_12_5_s(inputs, feat_x, feat_y, report, method, settings, reference):
+        cut = real_overlap_inputs(inputs, feat_x, feat_y, report, method, settings, reference)
         report["overlap"]["found_by"]["solve_s"] = 12.5  # as a matched overlap's record says
         return cut
 
