@@ -791,8 +791,13 @@ def descriptor_overlap(source: Mesh, target: Mesh, feat_x: np.ndarray, feat_y: n
     """
     from spidermatch.model.costs import unit_rows
 
-    unit_length = float(np.sqrt(max(source.area, target.area)))
+    unit_length = parts_unit_length(source, target)
     return estimated_overlap(source, target, unit_rows(feat_x), unit_rows(feat_y), unit_length)
+
+
+def parts_unit_length(source: Mesh, target: Mesh) -> float:
+    """The unit of length of two parts of one surface: the larger part's sqrt(area)."""
+    return float(np.sqrt(max(source.area, target.area)))
 
 
 def source_overlap_piece(
@@ -839,11 +844,33 @@ def source_overlap_piece(
     """
     check_overlap_method(method, "overlap_method")
     if method == "reference" and reference is not None:
-        unit_length = float(np.sqrt(max(source.area, target.area)))
-        region = reference_overlap(source, reference, unit_length)
-        piece = overlap_part(source, region, "has a partner on the reference shape where the target lies")
-        _log_piece(source, target, piece)
-        return piece, {"method": "reference"}
+        region = reference_overlap(source, reference, parts_unit_length(source, target))
+        record, found_as = (
+            {"method": "reference"},
+            "has a partner on the reference shape where the target lies",
+        )
+    else:
+        region, record, found_as = _found_by_descriptors(source, target, feat_x, feat_y, method, settings)
+    piece = overlap_part(source, region, found_as)
+    logger.info(
+        "%s: matching its overlap with %s, %d of %d vertices (%.0f %% of its area)",
+        source.name,
+        target.name,
+        piece.mesh.n_verts,
+        source.n_verts,
+        100 * piece.kept_area,
+    )
+    return piece, record
+
+
+def _found_by_descriptors(
+    source: Mesh, target: Mesh, feat_x: np.ndarray, feat_y: np.ndarray, method: str, settings
+) -> tuple[np.ndarray, dict, str]:
+    """The source's overlap (V_X,) bool by the descriptors' estimate, or by the matching it guides.
+
+    Also the record of how it was found and the words that say so in a refusal
+    (:func:`source_overlap_piece`, whose "reference" without a reference shape ends here too).
+    """
     region = descriptor_overlap(source, target, feat_x, feat_y)
     record, found_as = {"method": "features"}, "has descriptors that match back to themselves"
     if method == "reference":  # no reference shape: the features have none (WKS, joined networks)
@@ -864,20 +891,7 @@ def source_overlap_piece(
             record["fallback"] = "features"
         else:
             region, found_as = found.region, "was matched to the target, the rest to the void"
-    piece = overlap_part(source, region, found_as)
-    _log_piece(source, target, piece)
-    return piece, record
-
-
-def _log_piece(source: Mesh, target: Mesh, piece: PartialShape) -> None:
-    logger.info(
-        "%s: matching its overlap with %s, %d of %d vertices (%.0f %% of its area)",
-        source.name,
-        target.name,
-        piece.mesh.n_verts,
-        source.n_verts,
-        100 * piece.kept_area,
-    )
+    return region, record, found_as
 
 
 def on_whole_source(matching: Matching, piece: PartialShape, n_source: int) -> Matching:

@@ -23,9 +23,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from spidermatch import defaults
+from spidermatch.dense.feature_search import feature_nearest_neighbours
 from spidermatch.geometry.holes import sides_to_close
 from spidermatch.geometry.mesh import Mesh, small_holes_closed
-from spidermatch.geometry.overlap import ReferenceImages, nearest_feature_rows
+from spidermatch.geometry.overlap import ReferenceImages
 from spidermatch.geometry.remesh import decimate
 from spidermatch.geometry.smoothing import ROUGH, smoothed_if_rough
 from spidermatch.model.costs import unit_rows
@@ -143,7 +144,7 @@ def reference_images(
         feat_part, feat_reference = pair_features(
             extractor, part, reference, max_vertices, record, partial=True
         )
-        images.append(nearest_feature_rows(unit_rows(feat_part), unit_rows(feat_reference)))
+        images.append(feature_nearest_neighbours(feat_part, feat_reference))
     return ReferenceImages(reference, *images)
 
 

@@ -164,14 +164,6 @@ def reference_overlap(source: Mesh, images: ReferenceImages, unit_length: float)
     return region
 
 
-def nearest_feature_rows(rows_unit: np.ndarray, other_unit: np.ndarray) -> np.ndarray:
-    """Most similar row of ``other_unit`` (N_O, D) for each of ``rows_unit`` (N, D), shape (N,).
-
-    Both L2-normalised (cosine similarity), compared in blocks of :data:`BLOCK_ROWS` rows.
-    """
-    return _mutual_best(rows_unit, other_unit)[0]
-
-
 def _smoothed_region(
     source: Mesh, rows: np.ndarray, flags: np.ndarray, least_share: float, unit_length: float
 ) -> np.ndarray:
