@@ -1122,7 +1122,7 @@ def add_dense_map(
         result.dense = on_given_meshes(dense, *result.closed)
         if partial:
             whole = target.centred()
-            covered = covered_target(whole, result.dense.points(whole), mean_edge_length(source))
+            covered = covered_target(whole, result.dense.face, result.dense.bary, mean_edge_length(source))
             result.dense = dataclasses.replace(result.dense, covered=covered)
     covered = result.dense.covered
     covered_area = None if covered is None else covered_share(source, target, covered)

@@ -139,11 +139,40 @@ def test_the_identity_of_a_part_covers_what_was_kept():
         plane_cut(whole, np.array([1.0, 0.2, 0.0]), 0.5, "half"),
         holes_cut(whole, np.array([0, 100]), 0.6, "holed"),
     ):
-        covered = covered_target(whole, part.mesh.verts, mean_edge_length(part.mesh))
+        faces, bary = _at_vertices(whole, part.to_original)
+        covered = covered_target(whole, faces, bary, mean_edge_length(part.mesh))
         kept = np.zeros(whole.n_verts, dtype=bool)
         kept[part.to_original] = True
         assert covered[kept].all()
         assert (covered & ~kept).sum() <= 0.01 * kept.sum()  # not the ring one edge outside
+
+
+def _at_vertices(mesh: Mesh, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each of ``vertices`` as a point on ``mesh``: a face around it, all the weight on it."""
+    face_of = np.zeros(mesh.n_verts, dtype=np.int64)
+    corner_of = np.zeros(mesh.n_verts, dtype=np.int64)
+    for corner in range(3):
+        face_of[mesh.faces[:, corner]] = np.arange(mesh.n_faces)
+        corner_of[mesh.faces[:, corner]] = corner
+    bary = np.zeros((len(vertices), 3))
+    bary[np.arange(len(vertices)), corner_of[vertices]] = 1.0
+    return face_of[vertices], bary
+
+
+def test_an_image_inside_faces_covers_their_corners():
+    """Image points in the middle of faces reach into the stars of all their corners, though each
+    corner is more than half an edge away: the corners are covered as the part's own rim is."""
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    whole = Mesh(sphere.vertices, sphere.faces, "sphere")
+    faces = np.flatnonzero(whole.verts[whole.faces].mean(axis=1)[:, 0] > 0.5)
+    bary = np.full((faces.size, 3), 1.0 / 3.0)
+    covered = covered_target(whole, faces, bary, 0.0, closing_rings=0)
+    corners = np.zeros(whole.n_verts, dtype=bool)
+    corners[whole.faces[faces]] = True
+    assert np.array_equal(covered, corners)
+    on_edges = np.array([[0.5, 0.5, 0.0]] * faces.size)  # on the edge opposite each third corner
+    covered = covered_target(whole, faces, on_edges, 0.0, closing_rings=0)
+    assert not covered[whole.faces[faces, 2]].all() and covered[whole.faces[faces, :2]].all()
 
 
 def test_the_rigid_fit_residual_tells_a_moved_copy_from_scrambled_partners(creature):
