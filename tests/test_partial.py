@@ -393,7 +393,9 @@ def test_the_overlap_read_on_a_reference_shape_is_the_band_both_parts_share(crea
     assert sorted(extractor.calls) == sorted(
         [(lower.mesh.n_verts, creature.n_verts), (upper.mesh.n_verts, creature.n_verts)]
     )
-    assert result.details.overlap_found == {"method": "reference"} and result.status == "optimal"
+    found_by = result.details.overlap_found
+    assert found_by["method"] == "reference" and found_by["target_overlap"] == "reference"
+    assert result.status == "optimal"
     in_upper = np.zeros(creature.n_verts, dtype=bool)
     in_upper[upper.to_original] = True
     truth, found, areas = in_upper[lower.to_original], result.source_overlap, lower.mesh.vertex_areas
@@ -402,6 +404,11 @@ def test_the_overlap_read_on_a_reference_shape_is_the_band_both_parts_share(crea
     both = found & truth
     dense_error = np.linalg.norm(upper.mesh.verts[result.dense_map[both]] - lower.mesh.verts[both], axis=1)
     assert np.mean(dense_error) < 0.5 * mean_edge_length(creature)
+    in_lower = np.zeros(creature.n_verts, dtype=bool)
+    in_lower[lower.to_original] = True
+    truth, covered, areas = in_lower[upper.to_original], result.target_covered, upper.mesh.vertex_areas
+    assert areas[covered & truth].sum() / areas[covered | truth].sum() > 0.85  # the target's, read alike
+    assert 0.0 < found_by["map_covered_area"] <= 1.0
 
 
 def test_parts_that_reach_disjoint_regions_of_the_reference_share_no_overlap(creature):
@@ -444,8 +451,13 @@ def test_the_command_line_reads_the_overlap_on_the_checkpoint_reference(tmp_path
         "solver.time_limit=40",  # an untrained network: the way the overlap was found is the point
     )
     result = json.loads((out / "result.json").read_text())
-    assert result["overlap"]["found_by"] == {"method": "reference"}
+    found_by = result["overlap"]["found_by"]
+    assert found_by["method"] == "reference" and found_by["target_overlap"] == "reference"
     assert 0 < result["overlap"]["source_overlap_vertices"] <= lower.mesh.n_verts
+    covered = np.load(out / "dense_map.npz")["target_covered"]
+    assert covered.shape == (upper.mesh.n_verts,)
+    shared = upper.mesh.vertex_areas[covered].sum() / upper.mesh.area
+    assert result["overlap"]["target_covered_area"] == pytest.approx(shared, abs=1e-4)
 
 
 def test_an_unknown_overlap_method_is_refused_by_name(tmp_path, creature):

@@ -15,7 +15,7 @@ from functools import partial
 from pathlib import Path
 
 from spidermatch import shutdown
-from spidermatch.api import wks_on_parts_hint
+from spidermatch.api import with_target_overlap_read, wks_on_parts_hint
 from spidermatch.cli.inputs import (
     INPUT_ERRORS,
     check_inputs,
@@ -141,9 +141,11 @@ def run_stages(cfg, output_dir: Path, report: dict, getters: tuple) -> int:
     settings = dataclasses.replace(
         settings_from_config(cfg, inputs.resolution, feature_name), partial=inputs.partial
     )
+    read_on = None  # partial_overlap=reference: the whole source and the target, read on the reference
     if inputs.overlap:  # partial=both: only the source's overlap with the target is matched
         method = cfg.get("partial_overlap", "features")
         reference = overlap_reference(cfg, inputs) if method == "reference" else None
+        read_on = None if reference is None else (inputs.source, inputs.target, reference)
         inputs, feat_x = overlap_inputs(inputs, feat_x, feat_y, report, method, settings, reference)
         settings = solver_time_left(settings, report["overlap"]["found_by"].get("solve_s", 0.0))
     logger.info("solving strategy: %s", settings.strategy)
@@ -178,6 +180,8 @@ def run_stages(cfg, output_dir: Path, report: dict, getters: tuple) -> int:
             )
             report["timings_s"]["dense"] = round(result.timings["dense"], 3)
             report["quality"] = result.quality  # judged again with the dense map
+            if read_on is not None:
+                with_target_overlap_read(result, *read_on, report["overlap"]["found_by"])
             stage = "dense outputs"
             dense_errors = write_dense(output_dir, result, inputs, (feat_x, feat_y), report)
             picture_errors = None if dense_errors is None else (inputs.source_corr, dense_errors)

@@ -55,8 +55,10 @@ class DenseMap:
     method : str
         The method that made it.
     covered : np.ndarray, shape (V_Y,), bool, or None
-        For a partial source: the target vertices the map covers (the overlap); None for
-        two whole shapes, where the map covers the whole target.
+        For a partial source: the target vertices the map covers (the overlap; with
+        ``overlap_method="reference"`` the target's overlap read on the reference shape,
+        :func:`spidermatch.api.with_target_overlap_read`); None for two whole shapes, where
+        the map covers the whole target.
     inverse : InverseMap or None
         Every target vertex mapped back onto the source (``DenseSettings.inverse``).
 

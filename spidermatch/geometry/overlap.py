@@ -82,6 +82,10 @@ class ReferenceImages:
     source: np.ndarray
     target: np.ndarray
 
+    def swapped(self) -> ReferenceImages:
+        """The same reading with the two parts' roles exchanged (to read the target's overlap)."""
+        return ReferenceImages(self.reference, self.target, self.source)
+
 
 def estimated_overlap(
     source: Mesh,
