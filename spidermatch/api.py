@@ -33,6 +33,7 @@ from spidermatch.geometry.partial import (
     announce_pair,
     ids_or_missing,
     overlap_kind,
+    overlap_summary,
     pair_kind,
 )
 from spidermatch.geometry.repair import Repair, largest_clean_piece
@@ -849,10 +850,8 @@ def source_overlap_piece(
     check_overlap_method(method, "overlap_method")
     if method == "reference" and reference is not None:
         region = reference_overlap(source, reference, parts_unit_length(source, target))
-        record, found_as = (
-            {"method": "reference"},
-            "has a partner on the reference shape where the target lies",
-        )
+        record = {"method": "reference"}
+        found_as = "has a partner on the reference shape where the target lies"
     else:
         region, record, found_as = _found_by_descriptors(source, target, feat_x, feat_y, method, settings)
     piece = overlap_part(source, region, found_as)
@@ -895,11 +894,8 @@ def with_target_overlap_read(
     if result.dense is None or result.dense.covered is None:
         return
     region = reference_overlap(target, reference.swapped(), parts_unit_length(source, target))
-    areas = target.vertex_areas
-    record.update(
-        target_overlap="reference",
-        map_covered_area=round(float(areas[result.dense.covered].sum() / target.area), 4),
-    )
+    map_covered = overlap_summary(target, result.dense.covered)["target_covered_area"]
+    record.update(target_overlap="reference", map_covered_area=map_covered)
     result.dense = dataclasses.replace(result.dense, covered=region)
 
 
