@@ -1116,7 +1116,7 @@ def add_dense_map(
             result.target,
             result.low_map,
             *matched_features,
-            settings,
+            settings.for_part() if partial else settings,
             rest_scale=1.0 if partial else None,  # a part is measured in the target's unit
         )
         result.dense = on_given_meshes(dense, *result.closed)

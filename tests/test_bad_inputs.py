@@ -258,6 +258,7 @@ def test_largest_fitting_resolution_fits():
         ("dense.smoothing=abc", "dense.smoothing='abc'"),
         ("dense.n_neighbours=2.5", "dense.n_neighbours=2.5"),
         ("dense.distance_weight=abc", "dense.distance_weight='abc'"),
+        ("dense.part_fit_weight=0", "dense.part_fit_weight=0"),
         ("output.png=maybe", "output.png='maybe'"),
         ("target=[1,2]", "target=[1, 2]: must be one file path"),
         ("target={a:1}", "must be one file path"),

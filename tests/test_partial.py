@@ -10,8 +10,11 @@ import trimesh
 from conftest import composed
 
 import spidermatch
+from spidermatch import pipeline
 from spidermatch.cli.match import run_match
 from spidermatch.data.synthetic import make_creature
+from spidermatch.dense.densify import densify
+from spidermatch.dense.settings import DenseSettings
 from spidermatch.geometry.descriptors import WKSExtractor
 from spidermatch.geometry.io import load_mesh, save_mesh
 from spidermatch.geometry.mesh import Mesh, MeshError, make_mesh, topology
@@ -219,10 +222,20 @@ def test_cut_consistency_prefers_features_that_find_each_vertex_of_the_part():
     )
 
 
-def test_the_partial_mode_recovers_the_identity_on_the_kept_part(creature):
-    """A cut copy against its whole, with the whole's own features restricted to the part."""
+def test_the_partial_mode_recovers_the_identity_on_the_kept_part(creature, monkeypatch):
+    """A cut copy against its whole, with the whole's own features restricted to the part.
+
+    The dense stage deforms the part with the part's fit weight, not the whole shapes' one.
+    """
     part = plane_cut(creature, np.array([0.0, 1.0, 0.3]), 0.6, "part")
     feat_whole = WKSExtractor()(creature)
+    fit_weights = []
+
+    def densify_recorded(*args, **kwargs):
+        fit_weights.append(args[7].fit_weight)
+        return densify(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "densify", densify_recorded)
     result = spidermatch.match(
         part.mesh,
         creature,
@@ -231,6 +244,7 @@ def test_the_partial_mode_recovers_the_identity_on_the_kept_part(creature):
         time_limit=600,
     )
     assert result.details.pair.mode == "partial" and result.status == "optimal"
+    assert fit_weights == [DenseSettings().part_fit_weight] != [DenseSettings().fit_weight]
     sparse_source, sparse_target = result.matches.T
     sparse_error = np.linalg.norm(creature.verts[sparse_target] - part.mesh.verts[sparse_source], axis=1)
     dense_error = np.linalg.norm(creature.verts[result.dense_map] - part.mesh.verts, axis=1)
