@@ -359,7 +359,7 @@ def test_real_config_composes_and_runs(tmp_path):
     assert animals_config.model.input == "wks_xyz" and animals_config.model.in_channels == 131
     assert animals_config.data.up_axis == "z" and animals_config.data.orientation_turns == 8
     assert animals_config.data.partial_copies == 6 and animals_config.data.val == ["cat5", "dog5", "horse5"]
-    assert animals_config.loss.w_partial == 25.0  # the heavier cut-consistency term (people's is 50 since 2026-12-02)
+    assert animals_config.loss.w_partial == 25.0  # the heavier term; people's is 50 since 2026-12-02
     assert partial_config.data.partial_copies == 24 and partial_config.loss.w_partial == 50.0
     # one cosine; the time limit above the measured runs (110-112 min for FAUST_r, 66 min for TOSCA, one core
     # beside another training), so that the limit never cuts the recipe's cosine short
