@@ -624,7 +624,7 @@ def test_wks_on_a_part_is_warned_about_and_named_when_no_matching_is_found(creat
 
 def test_the_overlap_solve_and_the_piece_solve_share_one_time_limit(creature, monkeypatch):
     """partial='both' with the overlap matched: two solves, one ``time_limit`` between them."""
-    from spidermatch import overlap_solve, pipeline
+    from spidermatch import overlap_solve
 
     limits, real_overlap, real_match = {}, overlap_solve.matched_overlap, pipeline.match
 
@@ -671,8 +671,6 @@ def test_the_command_line_gives_the_piece_what_the_overlap_solve_left(tmp_path, 
 
 
 def test_later_solves_get_what_the_earlier_left_of_the_limit_and_no_limit_stays_none():
-    from spidermatch import pipeline
-
     settings = pipeline.MatchSettings(solver=pipeline.SolverOptions(time_limit=100.0))
     assert pipeline.solver_time_left(settings, 30.0).solver.time_limit == 70.0
     assert pipeline.solver_time_left(settings, 130.0).solver.time_limit == 0.0  # never negative
