@@ -516,7 +516,8 @@ def match(
         verdict is "plausible" (``details.second_opinion`` says which was kept; a second
         opinion that fails leaves the first map, the error there). Measured with a second
         training of the network (``LearnedExtractor(other_checkpoint)``) on partial-to-full
-        pairs: docs/partial.md. Not with ``partial="both"``.
+        pairs: docs/partial.md. With ``partial="both"`` the joined features search the source's
+        overlap again before matching it, so the second map may match another piece.
     overlap_method : str
         With ``partial="both"``, how the source's overlap is found: "features" (the
         descriptors' cycle consistency, before any solve), "reference" (both parts read as
@@ -538,11 +539,7 @@ def match(
 
     """
     from spidermatch.pipeline import match as run_pipeline
-    from spidermatch.pipeline import (
-        matched_with_second_opinion,
-        needs_second_opinion,
-        solver_time_left,
-    )
+    from spidermatch.pipeline import needs_second_opinion
 
     raise_problems([feature_cap_problem(features_max_vertices, "features_max_vertices")])
     source_mesh, repaired, source_weld = mesh_of(source, "source", repair)
@@ -578,41 +575,36 @@ def match(
     run_settings = _settings(settings, name, resolution, time_limit, mip_rel_gap, strategy)
     run_settings = dataclasses.replace(run_settings, partial=kind.mode != "whole")
     check_settings(run_settings, solver_prefix="")  # messages name the keywords: time_limit=, not solver.
-    piece = None
     if overlap:  # only the source region with a partner is matched, as a part of the target
-        piece, overlap_record = source_overlap_piece(
-            source_mesh, target_mesh, feat_x, feat_y, overlap_method, run_settings, reference
+        result, piece = _matched_overlap(
+            (source_mesh, target_mesh), (feat_x, feat_y), overlap_method, run_settings, reference
         )
-        feat_x = feat_x[piece.to_original]
-        run_settings = solver_time_left(run_settings, overlap_record.get("solve_s", 0.0))
-    matched_source = source_mesh if piece is None else piece.mesh
-    result = run_pipeline(matched_source, target_mesh, feat_x, feat_y, run_settings)
+    else:
+        piece, result = None, run_pipeline(source_mesh, target_mesh, feat_x, feat_y, run_settings)
     result.pair = kind
-    if overlap:
-        result.overlap_found = overlap_record
-        if reference is not None:
-            with_target_overlap_read(result, source_mesh, target_mesh, reference, overlap_record)
     if second_opinion is not None and needs_second_opinion(result):
-        if overlap:
-            logger.info("no second opinion with partial='both': the suspect map stands")
-        else:
-            started = time.perf_counter()
-            try:
-                second_features = _second_opinion_features(
-                    second_opinion,
-                    (source_mesh, target_mesh),
-                    ((source_weld, repaired), (target_weld, target_repaired)),
-                    features_max_vertices or None,
-                    kind.mode == "partial",
-                )
-                result, _ = matched_with_second_opinion(
-                    result, matched_source, target_mesh, (feat_x, feat_y), second_features, run_settings
-                )
-                result.pair = kind
-            except Exception as error:  # the second opinion must not cost the first map
-                logger.warning("the second opinion failed (%s): the first map stands", error)
-                result.second_opinion = {"kept": "first", "error": str(error)}
-            result.timings["second_opinion"] = time.perf_counter() - started
+        started = time.perf_counter()
+        try:
+            second_features = _second_opinion_features(
+                second_opinion,
+                (source_mesh, target_mesh),
+                ((source_weld, repaired), (target_weld, target_repaired)),
+                features_max_vertices or None,
+                kind.mode,
+            )
+            result, piece = _second_opinion_kept(
+                (result, piece),
+                (source_mesh, target_mesh),
+                ((feat_x, feat_y), second_features),
+                run_settings,
+                (overlap_method, reference),
+            )
+            result.pair = kind
+        except Exception as error:  # the second opinion must not cost the first map
+            logger.warning("the second opinion failed (%s): the first map stands", error)
+            result.second_opinion = {"kept": "first", "error": str(error)}
+        result.timings["second_opinion"] = time.perf_counter() - started
+    matched_source = source_mesh if piece is None else piece.mesh
     if strict:
         result.raise_for_status(unfit_features)
     matching = _matching(result, name, run_settings.resolution, {"features": feature_time, **result.timings})
@@ -631,17 +623,89 @@ def match(
     return on_file_vertices(matching, source_weld, target_weld)
 
 
-def _second_opinion_features(second_opinion, meshes: tuple, changes: tuple, cap, partial: bool) -> tuple:
+def _second_opinion_features(second_opinion, meshes: tuple, changes: tuple, cap, mode: str) -> tuple:
     """The second opinion's features of the matched source and target, (V_src, D) and (V_tgt, D).
 
     ``changes``: each mesh's (weld, repair) from :func:`mesh_of`. Arrays are given for the
     meshes as given and cut as the first features were; an extractor is run on the matched
-    meshes as the first one was.
+    meshes as the first one was (``mode``: the pair's :class:`PairKind` mode, which says how
+    the parts are presented to it). With ``partial="both"`` they are the whole source's.
     """
     if isinstance(second_opinion, (tuple, list)) and len(second_opinion) == 2:
         return tuple(_matched_rows(rows, *change) for rows, change in zip(second_opinion, changes))
-    second_x, second_y, _ = pair_features(second_opinion, *meshes, cap, partial=partial)
+    second_x, second_y, _ = pair_features(
+        second_opinion, *meshes, cap, partial=mode == "partial", overlap=mode == "overlap"
+    )
     return second_x, second_y
+
+
+def _second_opinion_kept(first: tuple, meshes: tuple, features: tuple, settings, overlap: tuple) -> tuple:
+    """The pair matched again with the two networks' features joined; the map to keep and its piece.
+
+    Parameters
+    ----------
+    first : (MatchResult, PartialShape or None)
+        The map judged suspect and, with ``partial="both"``, the source's overlap it matched.
+    meshes : (Mesh, Mesh)
+        The whole source (V_X vertices) and the target (V_Y).
+    features : ((np.ndarray (V_X, D1), np.ndarray (V_Y, D1)), (np.ndarray (V_X, D2), np.ndarray (V_Y, D2)))
+        The first map's features and the second opinion's, of the whole meshes.
+    settings : spidermatch.pipeline.MatchSettings
+    overlap : (str, ReferenceImages or None)
+        How the overlap is found (:func:`_matched_overlap`), used with ``partial="both"``: the
+        joined features find it again, so a second opinion can move the overlap as well as the map.
+
+    Returns
+    -------
+    result : MatchResult
+        The kept map (:func:`spidermatch.pipeline.kept_opinion`), its ``second_opinion`` filled in.
+    piece : PartialShape or None
+        The kept map's source piece.
+    """
+    from spidermatch.pipeline import joined_features, kept_opinion, matched_with_second_opinion
+
+    (result, piece), (first_features, second_features), (method, reference) = first, features, overlap
+    if piece is None:
+        kept, _ = matched_with_second_opinion(result, *meshes, first_features, second_features, settings)
+        return kept, None
+    joined = tuple(joined_features(a, b) for a, b in zip(first_features, second_features))
+    second, second_piece = _matched_overlap(meshes, joined, method, settings, reference)
+    kept = kept_opinion(result, second)
+    return kept, second_piece if kept is second else piece
+
+
+def _matched_overlap(meshes: tuple, features: tuple, method: str, settings, reference) -> tuple:
+    """``partial="both"``: the source's overlap with the target found and matched as a part of it.
+
+    Parameters
+    ----------
+    meshes : (Mesh, Mesh)
+        The whole source (V_X vertices) and the target (V_Y).
+    features : (np.ndarray (V_X, D), np.ndarray (V_Y, D))
+    method, reference
+        :func:`source_overlap_piece`'s; with ``reference``, the target's overlap is read on the
+        reference shape (:func:`with_target_overlap_read`).
+    settings : spidermatch.pipeline.MatchSettings
+        The run's; the piece's solve gets the time the overlap's own solve leaves.
+
+    Returns
+    -------
+    result : spidermatch.pipeline.MatchResult
+        The piece matched, ``overlap_found`` filled in.
+    piece : PartialShape
+        The source's overlap (V_piece vertices).
+    """
+    from spidermatch.pipeline import match as run_pipeline
+    from spidermatch.pipeline import solver_time_left
+
+    (source, target), (feat_x, feat_y) = meshes, features
+    piece, record = source_overlap_piece(source, target, feat_x, feat_y, method, settings, reference)
+    piece_settings = solver_time_left(settings, record.get("solve_s", 0.0))
+    result = run_pipeline(piece.mesh, target, feat_x[piece.to_original], feat_y, piece_settings)
+    result.overlap_found = record
+    if reference is not None:
+        with_target_overlap_read(result, source, target, reference, record)
+    return result, piece
 
 
 def on_file_vertices(matching: Matching, source_weld: Weld | None, target_weld: Weld | None) -> Matching:

@@ -83,3 +83,16 @@ def tiny_checkpoint(tmp_path_factory):
     folder = tmp_path_factory.mktemp("train")
     train(to_train_config(cfg), folder)
     return folder / "best.pt"
+
+
+def judged_suspect_once(monkeypatch, module) -> list:
+    """``module.needs_second_opinion`` says yes to the first map only (a plausible map asked anyway);
+    the maps it was asked about."""
+    calls = []
+
+    def once(result):
+        calls.append(result)
+        return len(calls) == 1
+
+    monkeypatch.setattr(module, "needs_second_opinion", once)
+    return calls

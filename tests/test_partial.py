@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from conftest import composed
+from conftest import composed, judged_suspect_once
 
 import spidermatch
 from spidermatch import pipeline
@@ -315,8 +315,10 @@ def _band_cuts(creature):
     return plane_cut(creature, normal, 0.65, "lower"), plane_cut(creature, -normal, 0.65, "upper")
 
 
-def _band_parts_matched(creature, overlap_method: str, resolution: int = 300, time_limit: float = 600):
-    """The two cuts of :func:`_band_cuts` matched with ``partial="both"``.
+def _band_parts_matched(
+    creature, overlap_method: str, resolution: int = 300, time_limit: float = 600, **options
+):
+    """The two cuts of :func:`_band_cuts` matched with ``partial="both"`` (and ``options``).
 
     Returns the two parts, the matching and the true source overlap (V_lower,) bool.
     """
@@ -330,6 +332,7 @@ def _band_parts_matched(creature, overlap_method: str, resolution: int = 300, ti
         time_limit=time_limit,
         partial="both",
         overlap_method=overlap_method,
+        **options,
     )
     in_upper = np.zeros(creature.n_verts, dtype=bool)
     in_upper[upper.to_original] = True
@@ -353,6 +356,99 @@ def test_two_overlapping_parts_are_matched_on_their_overlap_only(creature):
     quality = result.quality
     assert quality["dense_distortion_around_boundaries"] and quality["dense_covered"] > 0.5
     assert quality["verdict"] == "plausible" and quality["unjudged"] == [], quality
+
+
+def _overlap_searches_spied(monkeypatch, fail_second: bool = False) -> list:
+    """Each overlap search of ``spidermatch.api`` recorded as (V_X, D) of the source features it got;
+    with ``fail_second``, the second search finds nothing."""
+    from spidermatch import api
+
+    widths, real_search = [], api.source_overlap_piece
+
+    def spied(source, target, feat_x, *args):
+        widths.append(np.shape(feat_x))
+        if fail_second and len(widths) == 2:
+            raise MeshError(f"{source.name}: no overlap with the target found")
+        return real_search(source, target, feat_x, *args)
+
+    monkeypatch.setattr(api, "source_overlap_piece", spied)
+    return widths
+
+
+def test_a_second_opinion_of_two_parts_finds_the_overlap_again_with_both_features(creature, monkeypatch):
+    """partial="both": the second opinion searches the overlap again with the joined features (of the
+    whole source, not the first piece) and matches it; the kept map and its overlap are its own."""
+    lower, upper = _band_cuts(creature)
+    other = _smooth_position_code(creature.verts, dims=48, seed=1)
+    second = other[lower.to_original], other[upper.to_original]
+    widths = _overlap_searches_spied(monkeypatch)
+    judged_suspect_once(monkeypatch, pipeline)
+    _, _, result, truth = _band_parts_matched(creature, "features", resolution=200, second_opinion=second)
+    assert widths == [(lower.mesh.n_verts, 64), (lower.mesh.n_verts, 64 + 48)]
+    record = result.details.second_opinion
+    assert record["kept"] == "second" and record["second"]["verdict"] == "plausible", record
+    found = result.source_overlap
+    assert np.all((result.dense_map >= 0) == found)  # the files tell the kept map's piece
+    areas = lower.mesh.vertex_areas
+    assert areas[found & truth].sum() / areas[found | truth].sum() > 0.65
+    both = found & truth
+    dense_error = np.linalg.norm(upper.mesh.verts[result.dense_map[both]] - lower.mesh.verts[both], axis=1)
+    assert np.mean(dense_error) < 0.5 * mean_edge_length(creature)
+
+
+def test_a_second_opinion_of_two_parts_that_finds_no_overlap_leaves_the_first_map(creature, monkeypatch):
+    lower, upper = _band_cuts(creature)
+    other = _smooth_position_code(creature.verts, dims=48, seed=1)
+    widths = _overlap_searches_spied(monkeypatch, fail_second=True)
+    judged_suspect_once(monkeypatch, pipeline)
+    second = other[lower.to_original], other[upper.to_original]
+    _, _, result, _ = _band_parts_matched(creature, "features", resolution=200, second_opinion=second)
+    assert len(widths) == 2 and result.status == "optimal" and result.dense_map is not None
+    record = result.details.second_opinion
+    assert record["kept"] == "first" and "no overlap with the target found" in record["error"]
+    assert np.all((result.dense_map >= 0) == result.source_overlap)
+
+
+def test_the_command_line_second_opinion_of_two_parts_writes_the_second_overlap(
+    tmp_path, creature, tiny_checkpoint, monkeypatch
+):
+    """``partial=both`` with ``second_opinion``: the overlap is searched again with the joined features,
+    and every file (result.json's overlap, dense_map.npz, dense_matches.csv) tells the kept map's piece."""
+    import spidermatch.cli.match as cli_match
+
+    def code_of(verts, seed):  # the descriptors of each file vertex, read at its place on the creature
+        code = _smooth_position_code(creature.verts, dims=64 - 16 * seed, seed=seed)
+        return code[np.argmin(((verts[:, None] - creature.verts[None]) ** 2).sum(2), axis=1)]
+
+    def first_features(cfg, inputs):
+        return code_of(inputs.source.verts, 0), code_of(inputs.target.verts, 0), "learned", {}
+
+    def second_features(cfg, inputs):
+        return code_of(inputs.source.verts, 1), code_of(inputs.target.verts, 1)
+
+    lower, upper = _band_cuts(creature)
+    monkeypatch.setattr(cli_match, "compute_features", first_features)
+    monkeypatch.setattr(cli_match, "second_opinion_features", second_features)
+    widths = _overlap_searches_spied(monkeypatch)
+    judged_suspect_once(monkeypatch, cli_match)
+    learned = ["features=learned", f"checkpoint={tiny_checkpoint}", f"second_opinion={tiny_checkpoint}"]
+    out = _matched_files(tmp_path, lower.mesh, upper.mesh, "partial=both", "resolution=200", *learned)
+    assert widths == [(lower.mesh.n_verts, 64), (lower.mesh.n_verts, 64 + 48)]
+    result = json.loads((out / "result.json").read_text())
+    assert result["second_opinion"]["kept"] == "second" and result["status"] == "optimal", result
+    assert result["objective"] == pytest.approx(result["second_opinion"]["second"]["objective"])
+    n_piece = result["overlap"]["source_overlap_vertices"]
+    assert result["overlap"]["found_by"] == {"method": "features"}
+    assert "target_covered_area" in result["overlap"]
+    with np.load(out / "dense_map.npz") as dense:
+        ids = dense["source_vertex"]
+        assert ids.shape == (n_piece,) and ids.max() < lower.mesh.n_verts
+    rows = np.loadtxt(out / "dense_matches.csv", delimiter=",", skiprows=1, dtype=np.int64)
+    assert np.array_equal(np.flatnonzero(rows[:, 1] >= 0), np.sort(ids))
+    truth = np.isin(lower.to_original, upper.to_original)
+    both = truth & (rows[:, 1] >= 0)
+    dense_error = np.linalg.norm(upper.mesh.verts[rows[both, 1]] - lower.mesh.verts[both], axis=1)
+    assert both.sum() > 0.5 * truth.sum() and np.mean(dense_error) < mean_edge_length(creature)
 
 
 def test_the_overlap_matched_with_a_void_vertex_is_closer_to_the_truth_than_the_estimate(creature):

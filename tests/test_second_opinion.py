@@ -5,7 +5,7 @@ import types
 
 import numpy as np
 import pytest
-from conftest import composed
+from conftest import composed, judged_suspect_once
 
 import spidermatch
 from spidermatch import pipeline
@@ -58,23 +58,11 @@ def test_the_second_map_is_kept_only_when_judged_plausible(second, kept):
     assert not needs_second_opinion(opinion("suspect", matched=False))
 
 
-def _judged_suspect_once(monkeypatch, module):
-    """``module.needs_second_opinion`` says yes to the first map only (a plausible map asked anyway)."""
-    calls = []
-
-    def once(result):
-        calls.append(result)
-        return len(calls) == 1
-
-    monkeypatch.setattr(module, "needs_second_opinion", once)
-    return calls
-
-
 def test_api_asks_the_second_opinion_of_a_suspect_map_and_keeps_a_plausible_one(monkeypatch):
     shapes = SyntheticShapes(n_shapes=2, n_verts=700, seed=0)
     x, y = (shapes.load(name) for name in shapes.names)
     features = x.mesh.centred().verts, y.mesh.centred().verts
-    _judged_suspect_once(monkeypatch, pipeline)
+    judged_suspect_once(monkeypatch, pipeline)
     result = spidermatch.match(x.mesh, y.mesh, features=features, resolution=60, second_opinion=features)
     record = result.details.second_opinion
     assert record["first"]["verdict"] == "plausible"  # the same costs again: the same verdict
@@ -90,7 +78,7 @@ def test_api_second_opinion_that_fails_leaves_the_first_map(monkeypatch):
     shapes = SyntheticShapes(n_shapes=2, n_verts=700, seed=0)
     x, y = (shapes.load(name) for name in shapes.names)
     features = x.mesh.centred().verts, y.mesh.centred().verts
-    _judged_suspect_once(monkeypatch, pipeline)
+    judged_suspect_once(monkeypatch, pipeline)
     wrong = features[0][:10], features[1]  # ten rows for the whole source
     result = spidermatch.match(x.mesh, y.mesh, features=features, resolution=60, second_opinion=wrong)
     assert result.status == "optimal" and result.matches is not None
@@ -112,7 +100,7 @@ def test_cli_second_opinion_rewrites_the_outputs_with_the_kept_map(tmp_path, tin
         second.quality = {**(second.quality or {}), "verdict": "plausible", "reasons": []}
         return real_kept_opinion(first, second)
 
-    _judged_suspect_once(monkeypatch, cli_match)
+    judged_suspect_once(monkeypatch, cli_match)
     monkeypatch.setattr(cli_match, "second_opinion_features", other_features)
     real_kept_opinion = pipeline.kept_opinion
     monkeypatch.setattr(pipeline, "kept_opinion", judged_plausible)
@@ -136,7 +124,7 @@ def test_cli_second_opinion_that_fails_leaves_the_first_map(tmp_path, tiny_check
     def broken(cfg, inputs):
         raise RuntimeError("the second network is broken")
 
-    _judged_suspect_once(monkeypatch, cli_match)
+    judged_suspect_once(monkeypatch, cli_match)
     monkeypatch.setattr(cli_match, "second_opinion_features", broken)
     learned = ["features=learned", f"checkpoint={tiny_checkpoint}", f"second_opinion={tiny_checkpoint}"]
     assert run_match(composed("match", SMALL + learned), tmp_path) == 0

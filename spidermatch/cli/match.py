@@ -37,7 +37,7 @@ from spidermatch.cli.outputs import (
     write_matching,
     write_pngs,
 )
-from spidermatch.cli.second_opinion import Opinion, second_opinion_stage
+from spidermatch.cli.second_opinion import Opinion, OverlapSearch, second_opinion_stage
 from spidermatch.cli.settings import settings_from_config
 from spidermatch.pipeline import (
     MatchError,
@@ -141,11 +141,13 @@ def run_stages(cfg, output_dir: Path, report: dict, getters: tuple) -> int:
     settings = dataclasses.replace(
         settings_from_config(cfg, inputs.resolution, feature_name), partial=inputs.partial
     )
-    read_on = None  # partial_overlap=reference: the whole source and the target, read on the reference
+    read_on = search = None  # partial=both: where the overlap was searched, to read it again
+    run_settings = settings
     if inputs.overlap:  # partial=both: only the source's overlap with the target is matched
         method = cfg.get("partial_overlap", "features")
         reference = overlap_reference(cfg, inputs) if method == "reference" else None
         read_on = None if reference is None else (inputs.source, inputs.target, reference)
+        search = OverlapSearch(inputs, (feat_x, feat_y), method, reference, read_on)
         inputs, feat_x = overlap_inputs(inputs, feat_x, feat_y, report, method, settings, reference)
         settings = solver_time_left(settings, report["overlap"]["found_by"].get("solve_s", 0.0))
     logger.info("solving strategy: %s", settings.strategy)
@@ -185,15 +187,14 @@ def run_stages(cfg, output_dir: Path, report: dict, getters: tuple) -> int:
             stage = "dense outputs"
             dense_errors = write_dense(output_dir, result, inputs, (feat_x, feat_y), report)
             picture_errors = None if dense_errors is None else (inputs.source_corr, dense_errors)
-        asked = get_second_features is not None and needs_second_opinion(result)
-        if asked and inputs.overlap:
-            logger.info("no second opinion with partial=both: the suspect map stands")
-            report["second_opinion"] = {"kept": "first", "skipped": "partial=both"}
-        elif asked:
+        if get_second_features is not None and needs_second_opinion(result):
             stage = "second opinion"
-            first = Opinion(result, (feat_x, feat_y), picture_errors)
-            kept = second_opinion_stage(cfg, output_dir, inputs, settings, first, get_second_features, report)
-            result, picture_errors, status = kept.result, kept.picture_errors, kept.result.solve.status
+            first = Opinion(result, (feat_x, feat_y), picture_errors, inputs)
+            kept = second_opinion_stage(
+                cfg, output_dir, run_settings, first, get_second_features, report, search
+            )
+            result, picture_errors, inputs = kept.result, kept.picture_errors, kept.inputs
+            status = result.solve.status
         if cfg.output.png:
             stage = "pictures"
             viewer = bool(cfg.output.get("viewer", True))

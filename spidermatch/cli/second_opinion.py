@@ -4,8 +4,10 @@
 run whose map the quality verdict calls suspect (judged with the dense map when there is one)
 asks it: the pair is matched again with both networks' features joined
 (:func:`spidermatch.pipeline.joined_features`), and the second map replaces the first, in every
-file, if its verdict is plausible. The first map's files are written before; a second opinion
-that fails leaves them as they are. Measured on partial-to-full pairs in docs/partial.md.
+file, if its verdict is plausible. With ``partial=both`` the joined features first search the
+source's overlap again (:class:`OverlapSearch`), so the second map may match another piece. The
+first map's files are written before; a second opinion that fails leaves them as they are.
+Measured in docs/partial.md.
 """
 
 from __future__ import annotations
@@ -13,12 +15,22 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from functools import partial
 from pathlib import Path
 
 from spidermatch import shutdown
-from spidermatch.cli.inputs import MatchInputs
+from spidermatch.api import with_target_overlap_read
+from spidermatch.cli.inputs import MatchInputs, overlap_inputs
 from spidermatch.cli.outputs import result_summary, write_dense, write_interim_result, write_matching
-from spidermatch.pipeline import MatchResult, MatchSettings, matched_with_second_opinion
+from spidermatch.pipeline import (
+    MatchResult,
+    MatchSettings,
+    joined_features,
+    kept_opinion,
+    match,
+    matched_with_second_opinion,
+    solver_time_left,
+)
 
 logger = logging.getLogger("spidermatch.match")
 
@@ -30,16 +42,33 @@ class Opinion:
     result: MatchResult
     features: tuple
     picture_errors: tuple | None
+    inputs: MatchInputs  # as matched: with partial=both, the source cut to the piece
+
+
+@dataclasses.dataclass
+class OverlapSearch:
+    """``partial=both``: what the source's overlap was searched in, to search it again.
+
+    ``inputs`` are the run's with the whole source (V_X vertices), ``features`` their (V_X, D)
+    and (V_Y, D) features; ``method`` and ``reference`` are :func:`overlap_inputs`'s; ``read_on``
+    the (source, target, reference) the target's overlap is read with, or None.
+    """
+
+    inputs: MatchInputs
+    features: tuple
+    method: str
+    reference: object
+    read_on: tuple | None
 
 
 def second_opinion_stage(
     cfg,
     output_dir: Path,
-    inputs: MatchInputs,
     settings: MatchSettings,
     first: Opinion,
     get_second_features,
     report: dict,
+    search: OverlapSearch | None = None,
 ) -> Opinion:
     """Ask the second opinion about ``first`` (judged suspect); the opinion the run ends with.
 
@@ -47,16 +76,18 @@ def second_opinion_stage(
     ----------
     cfg : DictConfig
     output_dir : Path
-    inputs : MatchInputs
     settings : MatchSettings
-        The run's settings (with its dense settings).
+        The run's settings (with its dense settings; with ``partial=both``, before the overlap's
+        own solve took its share of the time).
     first : Opinion
         The suspect map, its files already written.
     get_second_features : callable (MatchInputs) -> (features_x (V_X, D), features_y (V_Y, D))
         The second network's features of the run's meshes.
     report : dict
         ``result.json`` so far: gets ``second_opinion`` and, when the second map is kept, its
-        figures in place of the first's.
+        figures (and with ``partial=both`` its ``overlap``) in place of the first's.
+    search : OverlapSearch, optional
+        With ``partial=both``: the overlap is searched again with the joined features.
 
     Returns
     -------
@@ -66,10 +97,8 @@ def second_opinion_stage(
     logger.info("the map is judged suspect: asking the second opinion (%s)", cfg.second_opinion)
     started = time.perf_counter()
     try:
-        second_features = get_second_features(inputs)
-        kept, features = matched_with_second_opinion(
-            first.result, inputs.source, inputs.target, first.features, second_features, settings
-        )
+        rematch = _whole_opinion if search is None else partial(_overlap_opinion, search=search)
+        kept, features, inputs, overlap = rematch(first, get_second_features, settings)
     except shutdown.RunInterrupted as interrupted:  # what the second solve knew is not the first map's
         report["second_opinion"] = {"kept": "first", "interrupted": dict(interrupted.known)}
         interrupted.known.clear()
@@ -84,6 +113,8 @@ def second_opinion_stage(
         report["second_opinion"] = {**kept.second_opinion, "time_s": seconds}
         return first
     timings = report["timings_s"]
+    if overlap is not None:
+        report["overlap"] = overlap
     report.update(result_summary(kept, inputs, report["features"]))
     report.update(status="writing", solver_status=kept.solve.status, quality=kept.quality)
     report["timings_s"] = {**timings, "second_opinion": seconds}
@@ -93,4 +124,58 @@ def second_opinion_stage(
     if kept.dense is not None:
         dense_errors = write_dense(output_dir, kept, inputs, features, report)
         picture_errors = None if dense_errors is None else (inputs.source_corr, dense_errors)
-    return Opinion(kept, features, picture_errors)
+    return Opinion(kept, features, picture_errors, inputs)
+
+
+def _whole_opinion(first: Opinion, get_second_features, settings: MatchSettings) -> tuple:
+    """The pair ``first`` matched, matched again with the two networks' features joined.
+
+    Returns
+    -------
+    kept : MatchResult
+        ``first.result`` or the second map (:func:`spidermatch.pipeline.kept_opinion`).
+    features : tuple of np.ndarray
+        The kept map's features, (V_X, D) and (V_Y, D).
+    inputs : MatchInputs
+        ``first.inputs``.
+    overlap : None
+        (The overlap's record of :func:`_overlap_opinion`.)
+    """
+    inputs = first.inputs
+    second = get_second_features(inputs)
+    kept, features = matched_with_second_opinion(
+        first.result, inputs.source, inputs.target, first.features, second, settings
+    )
+    return kept, features, inputs, None
+
+
+def _overlap_opinion(first: Opinion, get_second_features, settings: MatchSettings, search) -> tuple:
+    """``partial=both``: the overlap searched again and matched with the two networks' features joined.
+
+    ``search`` (:class:`OverlapSearch`) says where the first search ran.
+
+    Returns
+    -------
+    kept : MatchResult
+        ``first.result`` or the second map (:func:`spidermatch.pipeline.kept_opinion`).
+    features : tuple of np.ndarray or None
+        The second map's piece and target features, (V_piece, D) and (V_Y, D), when it is kept.
+    inputs : MatchInputs or None
+        The inputs cut to the second map's piece, when it is kept.
+    overlap : dict or None
+        ``result.json["overlap"]`` of the second map, when it is kept.
+    """
+    second = get_second_features(search.inputs)
+    joined_x, joined_y = (joined_features(a, b) for a, b in zip(search.features, second))
+    found: dict = {}
+    inputs, piece_x = overlap_inputs(
+        search.inputs, joined_x, joined_y, found, search.method, settings, search.reference
+    )
+    piece_settings = solver_time_left(settings, found["overlap"]["found_by"].get("solve_s", 0.0))
+    matched = match(inputs.source, inputs.target, piece_x, joined_y, piece_settings)
+    if search.read_on is not None:
+        with_target_overlap_read(matched, *search.read_on, found["overlap"]["found_by"])
+    kept = kept_opinion(first.result, matched)
+    if kept is first.result:
+        return kept, None, None, None
+    return kept, (piece_x, joined_y), inputs, found["overlap"]
