@@ -147,7 +147,7 @@ def run_stages(cfg, output_dir: Path, report: dict, getters: tuple) -> int:
         method = cfg.get("partial_overlap", "features")
         reference = overlap_reference(cfg, inputs) if method == "reference" else None
         read_on = None if reference is None else (inputs.source, inputs.target, reference)
-        search = OverlapSearch(inputs, (feat_x, feat_y), method, reference, read_on)
+        search = OverlapSearch(inputs, (feat_x, feat_y), method, reference)
         inputs, feat_x = overlap_inputs(inputs, feat_x, feat_y, report, method, settings, reference)
         settings = solver_time_left(settings, report["overlap"]["found_by"].get("solve_s", 0.0))
     logger.info("solving strategy: %s", settings.strategy)

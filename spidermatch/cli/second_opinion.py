@@ -50,15 +50,14 @@ class OverlapSearch:
     """``partial=both``: what the source's overlap was searched in, to search it again.
 
     ``inputs`` are the run's with the whole source (V_X vertices), ``features`` their (V_X, D)
-    and (V_Y, D) features; ``method`` and ``reference`` are :func:`overlap_inputs`'s; ``read_on``
-    the (source, target, reference) the target's overlap is read with, or None.
+    and (V_Y, D) features; ``method`` and ``reference`` are :func:`overlap_inputs`'s (with a
+    reference, the target's overlap is read on it too).
     """
 
     inputs: MatchInputs
     features: tuple
     method: str
     reference: object
-    read_on: tuple | None
 
 
 def second_opinion_stage(
@@ -173,8 +172,9 @@ def _overlap_opinion(first: Opinion, get_second_features, settings: MatchSetting
     )
     piece_settings = solver_time_left(settings, found["overlap"]["found_by"].get("solve_s", 0.0))
     matched = match(inputs.source, inputs.target, piece_x, joined_y, piece_settings)
-    if search.read_on is not None:
-        with_target_overlap_read(matched, *search.read_on, found["overlap"]["found_by"])
+    if search.reference is not None:
+        whole, found_by = search.inputs, found["overlap"]["found_by"]
+        with_target_overlap_read(matched, whole.source, whole.target, search.reference, found_by)
     kept = kept_opinion(first.result, matched)
     if kept is first.result:
         return kept, None, None, None
