@@ -743,9 +743,10 @@ def test_the_overlap_solve_and_the_piece_solve_share_one_time_limit(creature, mo
 
 
 def test_the_command_line_gives_the_piece_what_the_overlap_solve_left(tmp_path, creature, monkeypatch):
+    import spidermatch.cli.inputs as cli_inputs
     import spidermatch.cli.match as cli_match
 
-    given, real_overlap_inputs, real_match = [], cli_match.overlap_inputs, cli_match.match
+    given, real_overlap_inputs, real_match = [], cli_inputs.overlap_inputs, cli_match.match
 
     def overlap_took_12_5_s(inputs, feat_x, feat_y, report, method, settings, reference):
         cut = real_overlap_inputs(inputs, feat_x, feat_y, report, method, settings, reference)
@@ -756,7 +757,7 @@ def test_the_command_line_gives_the_piece_what_the_overlap_solve_left(tmp_path, 
         given.append(settings.solver.time_limit)
         return real_match(source, target, feat_x, feat_y, settings, **kwargs)
 
-    monkeypatch.setattr(cli_match, "overlap_inputs", overlap_took_12_5_s)
+    monkeypatch.setattr(cli_inputs, "overlap_inputs", overlap_took_12_5_s)
     monkeypatch.setattr(cli_match, "match", match_recorded)
     lower, upper = _band_cuts(creature)
     # a limit well above the piece's need, so that a busy machine still finds its map in what is left

@@ -14,7 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from spidermatch.api import BETTER_FEATURES_HINT, OVERLAP_METHODS, mesh_of, warned_wks_on_parts
+from spidermatch.api import (
+    BETTER_FEATURES_HINT,
+    OVERLAP_METHODS,
+    mesh_of,
+    warned_wks_on_parts,
+    with_target_overlap_read,
+)
 from spidermatch.cli.settings import dense_settings
 from spidermatch.data.datasets import DatasetError, SyntheticShapes
 from spidermatch.feature_transfer import MAX_FEATURE_VERTICES, pair_features
@@ -24,7 +30,7 @@ from spidermatch.geometry.partial import PairKind, announce_pair, original_faces
 from spidermatch.geometry.repair import Repair
 from spidermatch.geometry.weld import Weld
 from spidermatch.model_size import check_meshes_fit
-from spidermatch.pipeline import usable_cores
+from spidermatch.pipeline import solver_time_left, usable_cores
 from spidermatch.validate import (
     OptionError,
     check_ground_truth,
@@ -362,6 +368,59 @@ def overlap_inputs(
         piece_of=(vertex_ids, face_ids, n_user),
     )
     return cut, feat_x[piece.to_original]
+
+
+@dataclass(frozen=True)
+class OverlapSearch:
+    """``partial=both``: where the source's overlap with the target is searched, and how.
+
+    Kept so that a second opinion can search again with other features. ``inputs`` are the run's
+    with the whole source (V_X vertices), ``features`` the (V_X, D) and (V_Y, D) features of the
+    first search; ``method`` and ``reference`` are :func:`overlap_inputs`'s (with a reference, the
+    target's overlap is read on it too).
+    """
+
+    inputs: MatchInputs
+    features: tuple
+    method: str
+    reference: object
+
+    def piece(self, features: tuple, report: dict, settings) -> tuple:
+        """The inputs cut to the overlap ``features`` find, the piece's features and its settings.
+
+        Parameters
+        ----------
+        features : (np.ndarray (V_X, D), np.ndarray (V_Y, D))
+            Features of ``inputs``' meshes (the first search's or others).
+        report : dict
+            Gets ``overlap``, the piece's record (:func:`overlap_inputs`).
+        settings : spidermatch.pipeline.MatchSettings
+            The run's; the piece's solve gets what the overlap's own solve leaves of the time limit.
+
+        Returns
+        -------
+        MatchInputs
+            With ``source`` the piece (V_piece vertices).
+        np.ndarray, shape (V_piece, D)
+            The piece's source features.
+        spidermatch.pipeline.MatchSettings
+            The piece's settings.
+        """
+        feat_x, feat_y = features
+        cut, piece_x = overlap_inputs(
+            self.inputs, feat_x, feat_y, report, self.method, settings, self.reference
+        )
+        spent = report["overlap"]["found_by"].get("solve_s", 0.0)
+        return cut, piece_x, solver_time_left(settings, spent)
+
+    def read_target_overlap(self, result, found_by: dict) -> None:
+        """With a reference shape: ``result``'s target overlap read on it.
+
+        See :func:`spidermatch.api.with_target_overlap_read`.
+        """
+        if self.reference is not None:
+            whole = self.inputs
+            with_target_overlap_read(result, whole.source, whole.target, self.reference, found_by)
 
 
 def feature_details(extractor, record: dict) -> dict:

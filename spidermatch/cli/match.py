@@ -15,13 +15,13 @@ from functools import partial
 from pathlib import Path
 
 from spidermatch import shutdown
-from spidermatch.api import with_target_overlap_read, wks_on_parts_hint
+from spidermatch.api import wks_on_parts_hint
 from spidermatch.cli.inputs import (
     INPUT_ERRORS,
+    OverlapSearch,
     check_inputs,
     compute_features,
     load_inputs,
-    overlap_inputs,
     overlap_reference,
     resolution_text,
     second_opinion_features,
@@ -37,14 +37,13 @@ from spidermatch.cli.outputs import (
     write_matching,
     write_pngs,
 )
-from spidermatch.cli.second_opinion import Opinion, OverlapSearch, second_opinion_stage
+from spidermatch.cli.second_opinion import Opinion, second_opinion_stage
 from spidermatch.cli.settings import settings_from_config
 from spidermatch.pipeline import (
     MatchError,
     add_dense_map,
     match,
     needs_second_opinion,
-    solver_time_left,
 )
 from spidermatch.validate import (
     check_options,
@@ -141,15 +140,13 @@ def run_stages(cfg, output_dir: Path, report: dict, getters: tuple) -> int:
     settings = dataclasses.replace(
         settings_from_config(cfg, inputs.resolution, feature_name), partial=inputs.partial
     )
-    read_on = search = None  # partial=both: where the overlap was searched, to read it again
+    search = None  # partial=both: where the overlap was searched, to read it or search it again
     run_settings = settings
     if inputs.overlap:  # partial=both: only the source's overlap with the target is matched
         method = cfg.get("partial_overlap", "features")
         reference = overlap_reference(cfg, inputs) if method == "reference" else None
-        read_on = None if reference is None else (inputs.source, inputs.target, reference)
         search = OverlapSearch(inputs, (feat_x, feat_y), method, reference)
-        inputs, feat_x = overlap_inputs(inputs, feat_x, feat_y, report, method, settings, reference)
-        settings = solver_time_left(settings, report["overlap"]["found_by"].get("solve_s", 0.0))
+        inputs, feat_x, settings = search.piece(search.features, report, settings)
     logger.info("solving strategy: %s", settings.strategy)
     result = match(
         inputs.source,
@@ -182,8 +179,8 @@ def run_stages(cfg, output_dir: Path, report: dict, getters: tuple) -> int:
             )
             report["timings_s"]["dense"] = round(result.timings["dense"], 3)
             report["quality"] = result.quality  # judged again with the dense map
-            if read_on is not None:
-                with_target_overlap_read(result, *read_on, report["overlap"]["found_by"])
+            if search is not None:
+                search.read_target_overlap(result, report["overlap"]["found_by"])
             stage = "dense outputs"
             dense_errors = write_dense(output_dir, result, inputs, (feat_x, feat_y), report)
             picture_errors = None if dense_errors is None else (inputs.source_corr, dense_errors)

@@ -19,8 +19,7 @@ from functools import partial
 from pathlib import Path
 
 from spidermatch import shutdown
-from spidermatch.api import with_target_overlap_read
-from spidermatch.cli.inputs import MatchInputs, overlap_inputs
+from spidermatch.cli.inputs import MatchInputs, OverlapSearch
 from spidermatch.cli.outputs import result_summary, write_dense, write_interim_result, write_matching
 from spidermatch.pipeline import (
     MatchResult,
@@ -29,7 +28,6 @@ from spidermatch.pipeline import (
     kept_opinion,
     match,
     matched_with_second_opinion,
-    solver_time_left,
 )
 
 logger = logging.getLogger("spidermatch.match")
@@ -43,21 +41,6 @@ class Opinion:
     features: tuple
     picture_errors: tuple | None
     inputs: MatchInputs  # as matched: with partial=both, the source cut to the piece
-
-
-@dataclasses.dataclass
-class OverlapSearch:
-    """``partial=both``: what the source's overlap was searched in, to search it again.
-
-    ``inputs`` are the run's with the whole source (V_X vertices), ``features`` their (V_X, D)
-    and (V_Y, D) features; ``method`` and ``reference`` are :func:`overlap_inputs`'s (with a
-    reference, the target's overlap is read on it too).
-    """
-
-    inputs: MatchInputs
-    features: tuple
-    method: str
-    reference: object
 
 
 def second_opinion_stage(
@@ -167,14 +150,9 @@ def _overlap_opinion(first: Opinion, get_second_features, settings: MatchSetting
     second = get_second_features(search.inputs)
     joined_x, joined_y = (joined_features(a, b) for a, b in zip(search.features, second))
     found: dict = {}
-    inputs, piece_x = overlap_inputs(
-        search.inputs, joined_x, joined_y, found, search.method, settings, search.reference
-    )
-    piece_settings = solver_time_left(settings, found["overlap"]["found_by"].get("solve_s", 0.0))
+    inputs, piece_x, piece_settings = search.piece((joined_x, joined_y), found, settings)
     matched = match(inputs.source, inputs.target, piece_x, joined_y, piece_settings)
-    if search.reference is not None:
-        whole, found_by = search.inputs, found["overlap"]["found_by"]
-        with_target_overlap_read(matched, whole.source, whole.target, search.reference, found_by)
+    search.read_target_overlap(matched, found["overlap"]["found_by"])
     kept = kept_opinion(first.result, matched)
     if kept is first.result:
         return kept, None, None, None
