@@ -611,6 +611,80 @@ def test_a_re_solve_stopped_before_its_root_bound_keeps_the_bound_of_the_run_bef
     assert result.gap == pytest.approx(0.25 / (costs @ optimum))
 
 
+@pytest.mark.parametrize("re_solve_finds", ["nothing", "a cheaper path"])
+def test_a_wider_repair_between_cut_rounds_gives_the_answer_unless_the_re_solve_finds_a_cheaper_path(
+    monkeypatch, re_solve_finds
+):
+    """The restricted repair finds nothing: the caller's wider repair is asked once, at once, for the
+    solution just cut off; its path is the answer (feasible, the bound untouched) unless the re-solve
+    from the old start finds a cheaper one."""
+    import math
+
+    from spidermatch.solve.cuts import CutPool, solve_with_cuts
+    from spidermatch.solve.highs import HighsSession
+    from spidermatch.solve.types import SolveResult
+
+    graph, costs, optimum, detached = square_instance_with_detached_copy()
+    model = build_model(graph, SpiderCurve(np.array([0, 1, 0, 2]), 3), costs)
+    first_bound, runs, asked = float(costs @ optimum) - 0.25, [], []
+    wider_cost = float(costs @ optimum) + (1.0 if re_solve_finds == "a cheaper path" else 0.0)
+
+    def detached_then_the_re_solve(self):
+        if self.stop_when is None:  # a repair MIP within the restricted columns: nothing
+            return SolveResult("no_solution", None, math.inf, -math.inf, math.nan, 0.0, self.n_vars, 0, 0)
+        runs.append(len(runs))
+        if len(runs) == 1:  # optimal over its rows, with a detached 2-cycle
+            value = float(costs @ detached)
+            return SolveResult("optimal", detached, value, first_bound, 0.0, 0.0, self.n_vars, 0, 0)
+        if re_solve_finds == "nothing":
+            return SolveResult("no_solution", None, math.inf, first_bound, math.nan, 0.0, self.n_vars, 0, 0)
+        value = float(costs @ optimum)
+        return SolveResult("optimal", optimum, value, value, 0.0, 0.0, self.n_vars, 0, 0)
+
+    def wider_repair(options):
+        asked.append((options.time_limit, pool.detached))
+        return optimum.copy(), wider_cost
+
+    monkeypatch.setattr(HighsSession, "run", detached_then_the_re_solve)
+    pool = CutPool()
+    result = solve_with_cuts(
+        model, graph, SolverOptions(time_limit=100.0), pool=pool, stop_when=lambda *_: False,
+        repair_wider=wider_repair,
+    )  # fmt: skip
+    assert len(runs) == 2 and len(asked) == 1  # asked before the re-solve, once
+    budget, cut_off = asked[0]
+    assert 0 < budget <= 30.0 and cut_off is not None and cut_off.objective == pytest.approx(costs @ detached)
+    assert np.array_equal(result.x, optimum)
+    if re_solve_finds == "nothing":
+        assert result.status == "feasible" and "wider repair" in result.message
+        assert result.objective == pytest.approx(wider_cost) and result.bound == pytest.approx(first_bound)
+    else:
+        assert result.status == "optimal" and result.objective == pytest.approx(costs @ optimum)
+
+
+def test_no_wider_repair_after_a_run_stopped_on_request(monkeypatch):
+    """A stopped run returns at once: the caller repairs after it (with the time it keeps for that)."""
+    from spidermatch.solve.cuts import CutPool, solve_with_cuts
+    from spidermatch.solve.highs import HighsSession
+    from spidermatch.solve.types import SolveResult
+
+    graph, costs, optimum, detached = square_instance_with_detached_copy()
+    model = build_model(graph, SpiderCurve(np.array([0, 1, 0, 2]), 3), costs)
+
+    def stopped_with_a_detached_cycle(self):
+        self.stopped_early = True
+        value = float(costs @ detached)
+        return SolveResult("feasible", detached, value, value - 1.0, 0.1, 0.0, self.n_vars, 0, 0)
+
+    monkeypatch.setattr(HighsSession, "run", stopped_with_a_detached_cycle)
+    asked = []
+    result = solve_with_cuts(
+        model, graph, SolverOptions(), incumbent=optimum, pool=CutPool(), stop_when=lambda *_: True,
+        repair_wider=lambda options: asked.append(options),
+    )  # fmt: skip
+    assert asked == [] and np.array_equal(result.x, optimum) and "stopped early" in result.message
+
+
 def test_stop_when_judges_the_cheapest_closed_path_not_an_incumbent_with_detached_cycles():
     from types import SimpleNamespace
 

@@ -135,3 +135,40 @@ def test_a_repair_with_nearby_columns_reroutes_where_the_restricted_columns_cann
     uses = np.flatnonzero(repaired > 0.5)
     assert not set(uses.tolist()) <= set(np.union1d(restricted, broken).tolist())  # columns it added
     assert optimum.objective - 1e-9 <= lazy.costs(uses).sum() <= optimum.objective * (1 + 1e-3)
+
+
+def test_the_nearby_repair_between_cut_rounds_reports_each_cheaper_path_it_finds():
+    """colgen's wider repair for solve_with_cuts: a path mended from the pool's cut-off solution is
+    reported at once (a solver process stopped from outside keeps it); the solution is taken from the
+    pool; a path no cheaper than the best one known is not an answer."""
+    from spidermatch.solve.colgen import _nearby_repair_between_rounds
+    from spidermatch.solve.progress import set_known_sink
+    from spidermatch.solve.seeds import stay_seed
+    from tests.test_colgen import creature_lazy
+
+    lazy = creature_lazy(24, 3)
+    graph = lazy.graph
+    optimum = solve_plain(lazy.full_model(), graph, lazy.curve, EXACT)
+    path = np.flatnonzero(optimum.x > 0.5)
+    broken_layers = {graph.n_layers // 2, graph.n_layers // 2 + 1}
+    broken = path[~np.isin(path // graph.block_size, list(broken_layers))]
+    restricted = np.sort(stay_seed(lazy))
+    reports = []
+    set_known_sink(lambda incumbent, bound, found: reports.append((incumbent, bound, found)))
+    try:
+        for best_known, expected in ((1e9, "a path"), (optimum.objective * 0.5, None)):
+            pool = CutPool(first_layer=lazy.curve.first_layer)
+            pool.note_detached_solution(broken, float(lazy.costs(broken).sum()), broken_layers)
+            repair = _nearby_repair_between_rounds(lazy, restricted, pool, best_known, proven=-7.0)
+            found = repair(EXACT)
+            assert pool.detached is None  # taken
+            if expected is None:
+                assert found is None
+                continue
+            x, objective = found
+            assert passes_checker(lazy.curve, graph, x) and detached_components(graph, x) == []
+            assert objective == pytest.approx(lazy.costs(np.flatnonzero(x > 0.5)).sum())
+            assert reports == [(objective, -7.0, pytest.approx(np.flatnonzero(x > 0.5)))]
+    finally:
+        set_known_sink(None)
+    assert len(reports) == 1

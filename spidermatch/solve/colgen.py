@@ -322,13 +322,40 @@ def _lp_incumbent(lazy: LazyModel, lp: ColgenLp) -> np.ndarray | None:
     return None if detached_components(lazy.graph, x) else x
 
 
-def _restricted_mip(lazy, columns, options, incumbent, pool, layers, stop_when) -> SolveResult:
+def _restricted_mip(lazy, columns, options, incumbent, pool, layers, stop_when, proven) -> SolveResult:
+    """The step's MIP over ``columns``, from ``incumbent`` (n,); ``proven``: a bound for the full model."""
     if imposes_paths(lazy):  # connectivity cuts hold for closed paths only (an ablation without CON)
         pool.add_two_cycle_cuts(lazy.graph, layers, columns)
     logger.info("colgen: MIP over %d of %d columns, gap %.2g", columns.size, lazy.n_vars, options.mip_rel_gap)
+    repair_wider = _nearby_repair_between_rounds(lazy, columns, pool, objective_of(lazy, incumbent), proven)
     return solve_with_cuts(
-        None, lazy.graph, options, columns, incumbent, pool, lazy.compact_submodel(columns), stop_when
-    )
+        None, lazy.graph, options, columns, incumbent, pool, lazy.compact_submodel(columns), stop_when,
+        repair_wider,
+    )  # fmt: skip
+
+
+def _nearby_repair_between_rounds(lazy, columns, pool, incumbent: float, proven: float):
+    """``repair_wider`` for :func:`~spidermatch.solve.cuts.solve_with_cuts`: the nearby-column repair.
+
+    A restricted MIP whose optimum has detached cycles that no re-routing within its columns
+    mends is re-solved with their cuts from the best closed path it knows, often the stay path;
+    when its columns hold no cheap closed path at all, the re-solve can end there. The
+    nearby-column repair (:func:`_nearby_repair`) gets its turn at once instead of only after
+    the MIP: each path it finds is reported (a run stopped from outside keeps it) and becomes
+    the MIP's answer unless the re-solve finds a cheaper one. ``incumbent`` is the cost of the
+    best closed path known before the MIP, ``proven`` a bound for the full model.
+    """
+    best = incumbent
+
+    def repair(options: SolverOptions):
+        nonlocal best
+        found = _nearby_repair(lazy, columns, pool, options, best)
+        if found is not None:
+            best = found[1]
+            report_known(found[1], proven, used_columns(found[0]))
+        return found
+
+    return repair
 
 
 def _no_result(kind: str, message: str, lazy: LazyModel, start: float, bound: float = -math.inf):
@@ -411,7 +438,7 @@ def certify_by_steps(lazy, lp, options, start, pool, layers, built) -> SolveResu
         proven = lp.bound if best is None else best.bound  # an earlier step's bound (>= L) still holds
         try:
             result = _restricted_mip(
-                lazy, columns, remaining(options, start), incumbent, pool, layers, stop_when
+                lazy, columns, remaining(options, start), incumbent, pool, layers, stop_when, proven
             )
         except RunInterrupted as stop:  # its figures hold for the restricted MIP only
             stop.known.update(interrupted_full_model_figures(stop.known, proven, outside))
@@ -466,30 +493,43 @@ def _with_nearby_repair(
 
     The restricted MIP may end with only an expensive closed path (the stay path) after its
     cheapest solution had detached cycles that no re-routing within its columns mends
-    (:func:`~spidermatch.solve.repair.repair_with_nearby_columns` also uses nearby columns of
-    the full model). The closed path found is an incumbent: the step's bound is untouched, so
-    the certificate (docs/method.md, section 7) holds as before. ``options`` holds the time
-    left, ``whole`` the run's: the repair gets a share of what is left, or all of it once the
-    run is in its last :func:`~spidermatch.solve.repair.stop_reserve` (a MIP stopped for it).
+    (:func:`_nearby_repair`). The closed path found is an incumbent: the step's bound is
+    untouched, so the certificate (docs/method.md, section 7) holds as before. ``options``
+    holds the time left, ``whole`` the run's: the repair gets a share of what is left, or all
+    of it once the run is in its last :func:`~spidermatch.solve.repair.stop_reserve` (a MIP
+    stopped for it).
     """
-    detached, pool.detached = pool.detached, None
-    if detached is None or detached.objective >= result.objective or options.time_limit <= 0:
-        return result
     seconds = options.time_limit
     if seconds > stop_reserve(whole.time_limit):
         seconds = min(REPAIR_TIME_S, REPAIR_TIME_SHARE * seconds)
-    budget = replace(options, time_limit=seconds)
-    repaired = repair_with_nearby_columns(lazy, columns, detached.used, detached.layers, pool, budget)
-    if repaired is None:
+    found = _nearby_repair(lazy, columns, pool, replace(options, time_limit=seconds), result.objective)
+    if found is None:
         return result
-    objective = objective_of(lazy, repaired)
-    if objective >= result.objective:
-        return result
-    logger.info(
-        "colgen: a closed path of cost %.8g near the cut-off solution (was %.8g)", objective, result.objective
-    )
     status = "feasible" if result.status == "optimal" else result.status
-    return replace(result, x=repaired, objective=objective, status=status)
+    return replace(result, x=found[0], objective=found[1], status=status)
+
+
+def _nearby_repair(lazy, columns, pool, options: SolverOptions, below: float):
+    """A closed path near ``pool.detached`` costing less than ``below``: (x (n,), objective) or None.
+
+    :func:`~spidermatch.solve.repair.repair_with_nearby_columns` re-routes the solution with
+    detached cycles over the restricted columns ``columns`` and the full model's columns near it,
+    within ``options.time_limit``. The pool's solution is taken (a later one is noted anew).
+    """
+    detached, pool.detached = pool.detached, None
+    if detached is None or detached.objective >= below or options.time_limit <= 0:
+        return None
+    repaired = repair_with_nearby_columns(lazy, columns, detached.used, detached.layers, pool, options)
+    if repaired is None:
+        return None
+    objective = objective_of(lazy, repaired)
+    if objective >= below:
+        return None
+    logger.info(
+        "colgen: a closed path of cost %.8g near the cut-off solution of cost %.8g (best known was %.8g)",
+        objective, detached.objective, below,
+    )  # fmt: skip
+    return repaired, objective
 
 
 def mip_memory_problem(n_columns: int, room: int | None = None) -> str | None:

@@ -179,6 +179,7 @@ def solve_with_cuts(
     pool: CutPool | None = None,
     restricted: IlpModel | None = None,
     stop_when=None,
+    repair_wider=None,
 ) -> SolveResult:
     """Branch and cut on (a column subset of) the model, with lazy connectivity cuts.
 
@@ -205,6 +206,12 @@ def solve_with_cuts(
         or an improving solution without detached cycles), not HiGHS's own incumbent, which
         may have detached cycles that a re-solve would cut off. A run it stops is not
         re-solved for detached cycles: their cuts and flow rows go to ``pool`` for later solves.
+    repair_wider : callable, optional
+        ``repair_wider(options) -> (x (n,), objective) or None``: a closed path near the solution
+        with detached cycles just noted in ``pool`` (``pool.detached``), over columns that
+        ``columns`` may lack, within ``options.time_limit``. Asked between cut rounds when no
+        re-routing within ``columns`` mends that solution; the path it finds cannot start the
+        re-solve (its columns may be outside), but it is the result if nothing cheaper follows.
 
     Returns
     -------
@@ -239,6 +246,7 @@ def solve_with_cuts(
     result = session.run()
     best_bound = result.bound
     rounds = 0
+    wider = None  # (x (n,), objective): the cheapest closed path found by ``repair_wider``
     # connectivity cuts are valid for closed paths, which only flow conservation (CON) makes
     max_rounds = MAX_CUT_ROUNDS if imposes_paths(sub) else 0
     for round_number in range(1, max_rounds + 1):
@@ -254,20 +262,24 @@ def solve_with_cuts(
         pool.note_detached_solution(used, result.objective, affected)
         left = remaining(options, start)
         if left.time_limit <= 0:
-            return _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds)
+            stopped = _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds)
+            return with_wider_path(stopped, wider)
         # a run stopped early (or out of memory: no re-solve) may spend what is left on the
         # repair; otherwise a share of it
         last_run = session.stopped_early or result.out_of_memory
         budget = left.time_limit if last_run else REPAIR_TIME_SHARE * left.time_limit
         left = replace(left, time_limit=min(REPAIR_TIME_S, budget))
         repaired = _repaired(sub, graph, column_ids, result.x, affected, pool, left)
+        if repaired is None and repair_wider is not None and not last_run:  # after a last run: the caller's
+            wider = _cheaper(wider, repair_wider(_repair_budget(options, start)))
         if last_run:  # the caller has what it needs, the time is the repair's, or memory is short
             message = "stopped early (on request, or to leave time for the repair); detached cycles cut off"
             if result.out_of_memory:  # a re-solve with the cuts would need more memory still
                 message = f"{result.message}; detached cycles cut off, no re-solve"
-            return _stopped_while_separating(
+            stopped = _stopped_while_separating(
                 result, graph, session, columns, n_vars, start, rounds, message, repaired
             )
+            return with_wider_path(stopped, wider)
         logger.info(
             "cut round %d: %d detached cycles, %d connectivity cuts",
             round_number,
@@ -286,7 +298,37 @@ def solve_with_cuts(
         best_bound = max(best_bound, result.bound)
         result = with_best_bound(result, best_bound)
     x = expand(result.x, columns, n_vars)
-    return replace(result, x=x, wall_time=time.perf_counter() - start, cut_rounds=rounds)
+    result = replace(result, x=x, wall_time=time.perf_counter() - start, cut_rounds=rounds)
+    return with_wider_path(result, wider)
+
+
+def _repair_budget(options: SolverOptions, start: float) -> SolverOptions:
+    """``options`` with a repair's share of the time left since ``start``."""
+    left = remaining(options, start)
+    return replace(left, time_limit=min(REPAIR_TIME_S, REPAIR_TIME_SHARE * left.time_limit))
+
+
+def _cheaper(known, found):
+    """The cheaper of two (x, objective) pairs, either of which may be None."""
+    if found is None or (known is not None and known[1] <= found[1]):
+        return known
+    return found
+
+
+def with_wider_path(result: SolveResult, wider) -> SolveResult:
+    """``result``, or the closed path ``wider`` = (x (n,), objective) of a wider repair if cheaper.
+
+    That path only replaces the solution: the bound stays the (sub-)model's, which the path
+    does not touch; the status is "feasible" (the path proves nothing).
+    """
+    if wider is None or (result.x is not None and result.objective <= wider[1]):
+        return result
+    x, objective = wider
+    message = f"a closed path from a wider repair, cheaper than the sub-model's answer ({result.message})"
+    return replace(
+        result, status="feasible", x=x, objective=objective,
+        gap=relative_gap(objective, min(result.bound, objective)), message=message,
+    )  # fmt: skip
 
 
 def with_best_bound(result: SolveResult, best_bound: float) -> SolveResult:
