@@ -172,3 +172,23 @@ def test_the_nearby_repair_between_cut_rounds_reports_each_cheaper_path_it_finds
     finally:
         set_known_sink(None)
     assert len(reports) == 1
+
+
+def test_the_nearby_repair_tries_its_stages_smallest_first_each_but_the_last_with_a_share_of_the_time():
+    from spidermatch.solve.repair import _in_growing_windows
+
+    tries = []
+
+    def attempt(near, rings, options):
+        tries.append((int(near.sum()), rings, options.time_limit))
+        return np.array([1, 4]), (np.array([1.0, 1.0]) if rings == 2 else None)
+
+    stages = ((1, 0), (2, 1), (2, 2), (5, 2))
+    found = _in_growing_windows(attempt, [10], CutPool(), 40, 6, SolverOptions(time_limit=8.0), stages, 0.5)
+    assert found.tolist() == [0, 1, 0, 0, 1, 0]  # spread into the full vector at the positions
+    assert [(size, rings) for size, rings, _ in tries] == [(3, 0), (5, 1), (5, 2)]  # windows 1, 2, 2
+    # every try but the last gets half of what is left (the tries here take no time: 8 s stay left)
+    assert [limit for *_, limit in tries] == [pytest.approx(4.0, abs=0.05)] * 3
+    tries.clear()
+    assert _in_growing_windows(attempt, [10], CutPool(), 40, 6, SolverOptions(time_limit=8.0), stages[:2]) is None
+    assert tries[-1][2] == pytest.approx(8.0, abs=0.05)  # default share 1: each try gets all that is left

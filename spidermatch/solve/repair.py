@@ -44,7 +44,17 @@ STOP_RESERVE_S = 2 * REPAIR_TIME_S  # a MIP whose cheapest solution has detached
 # the last half is the reserve of a repair in a fresh process if that one is still inside HiGHS
 # (spidermatch.solve.isolate)
 REPAIR_GAP = 1e-3  # a start, not a proof: stop within this relative gap
-NEARBY_RINGS = 2  # a widened repair adds the columns within this many target rings of the solution
+NEARBY_RINGS = 2  # a widened repair adds the columns within this many target rings of the solution ...
+NEARBY_STAGES = (
+    (2, 0),
+    (REPAIR_WINDOWS[0], 1),
+    (REPAIR_WINDOWS[0], NEARBY_RINGS),
+    (REPAIR_WINDOWS[1], NEARBY_RINGS),
+)  # ... at most: its tries, as (window, rings), smallest first. A smaller repair MIP finds a closed
+# path sooner and often a cheaper one (TOSCA horse5-plane vs horse0: 5.72 in 6 s with 0 rings and
+# windows of 2 layers, 7.59 in 40 s with 1 ring and 3 layers, 8.78 in 60 s with 2 rings;
+# bench/README.md, solver constants)
+NEARBY_TRY_SHARE = 0.5  # every try but the last gets at most this share of the repair's time left
 
 
 def stop_reserve(time_limit: float) -> float:
@@ -110,7 +120,7 @@ def repair_detached(
     used = np.asarray(x_sub[:k]) > USED
     layer_of = column_ids // graph.block_size
 
-    def attempt(near: np.ndarray, local_options: SolverOptions):
+    def attempt(near: np.ndarray, _, local_options: SolverOptions):
         positions = np.flatnonzero(used | near[layer_of])
         local_x = _local_mip(model, graph, column_ids[positions], positions, pool, local_options)
         return positions, local_x
@@ -118,20 +128,27 @@ def repair_detached(
     return _in_growing_windows(attempt, affected_layers, pool, graph.n_layers, k, options)
 
 
-def _in_growing_windows(attempt, affected_layers, pool, n_layers: int, size: int, options: SolverOptions):
-    """The first closed path ``attempt(freed layers (L,), options)`` finds over ``REPAIR_WINDOWS``.
+def _in_growing_windows(
+    attempt, affected_layers, pool, n_layers: int, size: int, options: SolverOptions,
+    stages=tuple((window, None) for window in REPAIR_WINDOWS), share: float = 1.0,
+):  # fmt: skip
+    """The first closed path ``attempt(freed layers (L,), stage, options)`` finds over ``stages``.
 
-    ``attempt`` returns (positions (p,), a solution over them or None); the answer is that
-    solution spread into a vector (size,), or None when no window gave one in time.
+    ``stages`` are (window, anything the attempt needs) pairs, tried in order; every try but the
+    last gets at most ``share`` of the time left. ``attempt`` returns (positions (p,), a solution
+    over them or None); the answer is that solution spread into a vector (size,), or None when
+    no try gave one in time.
     """
     deadline = time.perf_counter() + options.time_limit
     report_repairing()  # a solver process that repairs is not stuck (spidermatch.solve.isolate)
-    for window in REPAIR_WINDOWS:
+    for number, (window, stage) in enumerate(stages):
         left = deadline - time.perf_counter()
         if left <= 0:
             return None
+        if number < len(stages) - 1:
+            left *= share
         near = freed_layers(affected_layers, pool.first_layer, n_layers, window)
-        positions, local_x = attempt(near, replace(options, time_limit=left))
+        positions, local_x = attempt(near, stage, replace(options, time_limit=left))
         if local_x is not None:
             repaired = np.zeros(size)
             repaired[positions] = local_x
@@ -215,12 +232,16 @@ def repair_with_nearby_columns(
 
     :func:`repair_detached` re-routes within the restricted MIP's columns; where those hold no
     closed path near the solution (the path's detours around a self-intersection need columns
-    that the path reduced costs left out), this repair also frees, in the same windows of
-    layers, every column of the full model within :data:`NEARBY_RINGS` target rings of the
-    solution (:func:`nearby_columns`), with flow rows in every freed layer so that the re-routed
-    path has no detached cycle there. Its answer is a start and an incumbent: it proves
-    nothing, and it is checked to be one closed walk; its model holds every row of the full
-    model that its columns touch, so it is feasible for the full model.
+    that the path reduced costs left out), this repair also frees, in windows of layers around
+    the affected ones, every column of the full model between target vertices near the solution
+    (:func:`nearby_columns`), with flow rows in every freed layer so that the re-routed path has
+    no detached cycle there. It tries :data:`NEARBY_STAGES` in turn, from windows of 2 layers and
+    the target vertices the solution visits (0 rings) to windows of 12 layers and
+    :data:`NEARBY_RINGS` rings, each try but the last with at most :data:`NEARBY_TRY_SHARE` of
+    the time left: a smaller repair MIP finds its closed path sooner, often a cheaper one too.
+    Its answer is a start and an incumbent: it proves nothing, and it is checked to be one
+    closed walk; its model holds every row of the full model that its columns touch, so it is
+    feasible for the full model.
 
     Parameters
     ----------
@@ -243,12 +264,14 @@ def repair_with_nearby_columns(
     """
     graph = lazy.graph
 
-    def attempt(near: np.ndarray, local_options: SolverOptions):
+    def attempt(near: np.ndarray, rings: int, local_options: SolverOptions):
         inside = columns[near[columns // graph.block_size]]
-        positions = np.union1d(np.union1d(used, inside), nearby_columns(graph, used, near))
+        positions = np.union1d(np.union1d(used, inside), nearby_columns(graph, used, near, rings))
         model = lazy.compact_submodel(positions)
         flow_layers = pool.flow_layers | set(np.flatnonzero(near).tolist())  # no new cycle where it re-routes
         local = np.arange(positions.size)
         return positions, _local_mip(model, graph, positions, local, pool, local_options, flow_layers)
 
-    return _in_growing_windows(attempt, affected_layers, pool, graph.n_layers, lazy.n_vars, options)
+    return _in_growing_windows(
+        attempt, affected_layers, pool, graph.n_layers, lazy.n_vars, options, NEARBY_STAGES, NEARBY_TRY_SHARE
+    )
