@@ -190,5 +190,6 @@ def test_the_nearby_repair_tries_its_stages_smallest_first_each_but_the_last_wit
     # every try but the last gets half of what is left (the tries here take no time: 8 s stay left)
     assert [limit for *_, limit in tries] == [pytest.approx(4.0, abs=0.05)] * 3
     tries.clear()
-    assert _in_growing_windows(attempt, [10], CutPool(), 40, 6, SolverOptions(time_limit=8.0), stages[:2]) is None
+    whole_time = SolverOptions(time_limit=8.0)
+    assert _in_growing_windows(attempt, [10], CutPool(), 40, 6, whole_time, stages[:2]) is None
     assert tries[-1][2] == pytest.approx(8.0, abs=0.05)  # default share 1: each try gets all that is left
