@@ -263,13 +263,12 @@ def solve_with_cuts(
         left = remaining(options, start)
         if left.time_limit <= 0:
             stopped = _stopped_while_separating(result, graph, session, columns, n_vars, start, rounds)
-            return with_wider_path(stopped, wider)
+            return _with_wider_path(stopped, wider)
         # a run stopped early (or out of memory: no re-solve) may spend what is left on the
         # repair; otherwise a share of it
         last_run = session.stopped_early or result.out_of_memory
-        budget = left.time_limit if last_run else REPAIR_TIME_SHARE * left.time_limit
-        left = replace(left, time_limit=min(REPAIR_TIME_S, budget))
-        repaired = _repaired(sub, graph, column_ids, result.x, affected, pool, left)
+        budget = _repair_budget(options, start, 1.0 if last_run else REPAIR_TIME_SHARE)
+        repaired = _repaired(sub, graph, column_ids, result.x, affected, pool, budget)
         if repaired is None and repair_wider is not None and not last_run:  # after a last run: the caller's
             wider = _cheaper(wider, repair_wider(_repair_budget(options, start)))
         if last_run:  # the caller has what it needs, the time is the repair's, or memory is short
@@ -279,7 +278,7 @@ def solve_with_cuts(
             stopped = _stopped_while_separating(
                 result, graph, session, columns, n_vars, start, rounds, message, repaired
             )
-            return with_wider_path(stopped, wider)
+            return _with_wider_path(stopped, wider)
         logger.info(
             "cut round %d: %d detached cycles, %d connectivity cuts",
             round_number,
@@ -299,13 +298,13 @@ def solve_with_cuts(
         result = with_best_bound(result, best_bound)
     x = expand(result.x, columns, n_vars)
     result = replace(result, x=x, wall_time=time.perf_counter() - start, cut_rounds=rounds)
-    return with_wider_path(result, wider)
+    return _with_wider_path(result, wider)
 
 
-def _repair_budget(options: SolverOptions, start: float) -> SolverOptions:
-    """``options`` with a repair's share of the time left since ``start``."""
+def _repair_budget(options: SolverOptions, start: float, share: float = REPAIR_TIME_SHARE) -> SolverOptions:
+    """``options`` with a repair's time: ``share`` of what is left since ``start``, at most REPAIR_TIME_S."""
     left = remaining(options, start)
-    return replace(left, time_limit=min(REPAIR_TIME_S, REPAIR_TIME_SHARE * left.time_limit))
+    return replace(left, time_limit=min(REPAIR_TIME_S, share * left.time_limit))
 
 
 def _cheaper(known, found):
@@ -315,7 +314,7 @@ def _cheaper(known, found):
     return found
 
 
-def with_wider_path(result: SolveResult, wider) -> SolveResult:
+def _with_wider_path(result: SolveResult, wider) -> SolveResult:
     """``result``, or the closed path ``wider`` = (x (n,), objective) of a wider repair if cheaper.
 
     That path only replaces the solution: the bound stays the (sub-)model's, which the path
